@@ -1,0 +1,40 @@
+"""mara_mjx: the gym-gazebo2 MARA arm tasks on MuJoCo MJX.
+
+Public API:
+    make(name, **overrides)   build one of `registered()` (MARA, MARAOrient,
+                              MARACollision, MARACollisionOrient)
+    register(name, factory)   add your own variant
+    Env.reset(key, params=None) -> EnvState;  Env.step(state, action) -> EnvState
+    BatchedEnv(env, n)        vmap + auto-reset + episode statistics
+    EnvConfig / EnvParams / EnvState / RewardParams
+"""
+
+from mara_mjx.envs import (
+    BatchedEnv,
+    BatchedState,
+    EnvConfig,
+    EnvParams,
+    EnvState,
+    MaraEnv,
+    make,
+    register,
+    registered,
+)
+from mara_mjx.rewards import RewardParams
+
+Env = MaraEnv
+
+__all__ = [
+    "BatchedEnv",
+    "BatchedState",
+    "Env",
+    "EnvConfig",
+    "EnvParams",
+    "EnvState",
+    "MaraEnv",
+    "RewardParams",
+    "make",
+    "register",
+    "registered",
+]
+__version__ = "0.1.0"

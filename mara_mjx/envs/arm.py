@@ -1,0 +1,144 @@
+"""The MARA arm on MJX: model loading, the TCP pose, collision, and the two drivers.
+
+Everything task-independent lives here; `mara.py` builds the tasks on top.
+
+Physics state is three (6,) arrays, not a whole `mjx.Data`: joint positions `q`
+(rad), velocities `qvel` (rad/s) and the servo references `ref` (rad, `real`
+driver only). Each step fills a constant `mjx.Data` template with them and runs
+only the MJX stages the driver needs, so the batched state that XLA carries from
+step to step is 18 floats per arm instead of every field of `mjx.Data`.
+
+Drivers (spec section 5):
+  * `train`: the commanded joint positions are reached at once. q' = clip(a),
+    qvel' = (q' - q) / control_dt, then `mjx.kinematics` and `mjx.collision`.
+    No dynamics.
+  * `real`: each joint's servo reference moves toward the command at
+    `velocity` rad/s; `mjx.step` integrates the arm's dynamics under position
+    servos (torque-limited to the effort limits, gravity fed forward) for
+    control_dt / timestep substeps. Contacts act physically.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+
+from mara_mjx.envs.geometry import quat_canonical
+
+ASSETS = Path(__file__).resolve().parents[2] / "assets"
+XML_PATH = ASSETS / "mara.xml"
+JOINTS = ("motor1", "motor2", "motor3", "motor4", "motor5", "motor6")
+# Joint velocity limit of the MARA servos (spec section 1): 1.57 rad/s = 90 deg/s.
+MAX_JOINT_SPEED = 1.57
+TABLE_TOP_Z = 0.645
+
+
+class ArmPose(NamedTuple):
+    """What the tasks need from one kinematics pass."""
+
+    tcp_pos: jax.Array  # (3,) m, world frame
+    tcp_quat: jax.Array  # (4,) (w, x, y, z), w >= 0
+    tcp_jac: jax.Array  # (3, 6) d tcp_pos / d q, world frame
+    collided: jax.Array  # () bool: any listed contact pair penetrates
+
+
+def load_model(xml_path: str | Path = XML_PATH) -> mujoco.MjModel:
+    """The C MuJoCo model of the arm, table, gripper and target marker."""
+    path = Path(xml_path)
+    if not path.is_file():
+        raise FileNotFoundError(f"MJCF model not found: {path}")
+    return mujoco.MjModel.from_xml_path(str(path))
+
+
+class Arm:
+    """The MARA arm: its MJX model, ids resolved once, and the two drivers."""
+
+    def __init__(self, mj_model: mujoco.MjModel | None = None):
+        self.mj_model = load_model() if mj_model is None else mj_model
+        m = self.mj_model
+        self.joint_ids = np.array([m.joint(n).id for n in JOINTS])
+        if m.nq != len(JOINTS) or m.nv != len(JOINTS) or m.nu != len(JOINTS):
+            raise ValueError(f"expected a 6-joint, 6-actuator arm, got nq={m.nq} nu={m.nu}")
+        self.tcp_site = m.site("tcp").id
+        self.flange_body = m.body("motor6_link").id
+        self.lower = m.jnt_range[self.joint_ids, 0].copy()
+        self.upper = m.jnt_range[self.joint_ids, 1].copy()
+        self.timestep = float(m.opt.timestep)
+        self.mjx_model = mjx.put_model(m, impl="jax")
+        self._data0 = mjx.make_data(m, impl="jax")
+        self.num_contacts = int(self._data0._impl.contact.dist.shape[0])
+
+    # ------------------------------------------------------------------ poses
+    def _pose(self, d: mjx.Data) -> ArmPose:
+        """TCP pose, its positional Jacobian and the collision flag of a posed `d`."""
+        tcp_pos = d.site_xpos[self.tcp_site]
+        tcp_quat = quat_canonical(d.xquat[self.flange_body])
+        # Revolute joints: column i of J_pos is axis_i x (p_tcp - anchor_i).
+        jac = jnp.cross(d.xaxis, tcp_pos[None, :] - d.xanchor).T
+        collided = jnp.any(d._impl.contact.dist < 0.0) if self.num_contacts else jnp.array(False)
+        return ArmPose(tcp_pos, tcp_quat, jac, collided)
+
+    def pose(self, q: jax.Array) -> ArmPose:
+        """Kinematics and collision detection at joint positions q (6,)."""
+        with jax.named_scope("kinematics"):
+            d = mjx.kinematics(self.mjx_model, self._data0.replace(qpos=q))
+        with jax.named_scope("collision"):
+            d = mjx.collision(self.mjx_model, d)
+        return self._pose(d)
+
+    # ---------------------------------------------------------------- drivers
+    def train_step(
+        self, q: jax.Array, command: jax.Array, control_dt: float
+    ) -> tuple[jax.Array, jax.Array, ArmPose]:
+        """Teleport to `command` (already inside the joint box). Returns q', qvel', pose."""
+        qvel = (command - q) / control_dt
+        return command, qvel, self.pose(command)
+
+    def real_step(
+        self,
+        q: jax.Array,
+        qvel: jax.Array,
+        ref: jax.Array,
+        command: jax.Array,
+        velocity: jax.Array,
+        n_substeps: int,
+    ) -> tuple[jax.Array, jax.Array, jax.Array, ArmPose]:
+        """Servo toward `command` for n_substeps physics steps. Returns q', qvel', ref', pose.
+
+        The pose's `collided` is true if any substep started in penetration or the final
+        pose penetrates.
+        """
+        max_move = velocity * self.timestep
+
+        def substep(carry, _):
+            d, ref, hit = carry
+            ref = ref + jnp.clip(command - ref, -max_move, max_move)
+            d = mjx.step(self.mjx_model, d.replace(ctrl=ref))
+            hit = hit | jnp.any(d._impl.contact.dist < 0.0)
+            return (d, ref, hit), None
+
+        d = self._data0.replace(qpos=q, qvel=qvel, ctrl=ref)
+        with jax.named_scope("dynamics"):
+            (d, ref, hit), _ = jax.lax.scan(
+                substep, (d, ref, jnp.array(False)), None, length=n_substeps
+            )
+        pose = self.pose(d.qpos)
+        return d.qpos, d.qvel, ref, pose._replace(collided=pose.collided | hit)
+
+    # ------------------------------------------------------------ rendering
+    def mj_data(self, q: np.ndarray, target_pos=None, target_quat=None) -> mujoco.MjData:
+        """A C MuJoCo MjData at pose q with the target marker placed (host side)."""
+        d = mujoco.MjData(self.mj_model)
+        d.qpos[:] = np.asarray(q)
+        if target_pos is not None:
+            d.mocap_pos[0] = np.asarray(target_pos)
+        if target_quat is not None:
+            d.mocap_quat[0] = np.asarray(target_quat)
+        mujoco.mj_forward(self.mj_model, d)
+        return d

@@ -1,0 +1,176 @@
+"""The environment contract: config (static), params (traced), state (episode data).
+
+* `EnvConfig` is fixed when an env is built: anything that changes shapes or Python
+  control flow (driver, horizon, control period) plus the defaults of the params.
+  It is a frozen dataclass validated in `__post_init__`; `make(name, **overrides)`
+  replaces its fields.
+* `EnvParams` is a pytree of arrays passed to `reset` and kept in the state, so a
+  sweep or a per-environment randomisation of the target, the reward
+  hyperparameters or the servo speed never recompiles.
+* `EnvState` is a typed pytree with a fixed structure from `reset` on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Literal
+
+import jax
+import numpy as np
+from flax import struct
+
+from mara_mjx.envs.arm import MAX_JOINT_SPEED
+from mara_mjx.rewards import RewardParams
+
+DRIVERS = ("train", "real")
+DEFAULT_TARGET_POS = (-0.40028, 0.095615, 0.72466)
+DEFAULT_TARGET_QUAT = (0.0, 0.7071068, 0.7071068, 0.0)
+
+# Every key of EnvState.metrics, present from reset on.
+METRIC_KEYS = (
+    "distance",  # () m, RMS of the position error (the reward's d)
+    "position_error",  # (3,) m, |e_x|, |e_y|, |e_z|
+    "angle",  # () rad, orientation error angle theta
+    "orientation_error",  # (3,) rad, |roll|, |pitch|, |yaw| of quat_err
+    "collided",  # () 0/1, this step collided (the arm was put back at the reset pose)
+    "collisions",  # () number of collisions so far in this episode
+    "nonfinite_actions",  # () number of non-finite action entries replaced in this step
+    "physics_blowup",  # () 0/1, the physics state went non-finite (terminates)
+    "episode_return",  # () running sum of rewards in this episode
+    "episode_length",  # () steps so far in this episode
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvConfig:
+    """Configuration of one MARA task. Every field can be overridden in `make`."""
+
+    driver: Literal["train", "real"] = "train"
+    """'train': joints reach commands at once (kinematics + collision only, the paper's
+    training driver). 'real': velocity-limited position servos and MJX dynamics."""
+    max_episode_steps: int = 1024
+    """Horizon: the episode truncates after this many steps."""
+    control_dt: float = 0.05
+    """Control period (s): one env step. The real driver splits it into physics steps of
+    the model's 5 ms timestep; the train driver uses it for qvel = (q' - q) / control_dt."""
+    velocity: float = 0.5
+    """Real driver: speed (rad/s) at which each servo reference moves toward the command,
+    in (0, 1.57]. Ignored by the train driver."""
+    target_pos: tuple[float, float, float] = DEFAULT_TARGET_POS
+    """Target TCP position (m, world frame). Must be reachable without collision."""
+    target_quat: tuple[float, float, float, float] = DEFAULT_TARGET_QUAT
+    """Target TCP orientation (w, x, y, z), normalised on use. Orient tasks only."""
+    reward: RewardParams = dataclasses.field(default_factory=RewardParams)
+    """Reward hyperparameters (alpha, beta, gamma, delta, eta, done)."""
+    check_target: bool = True
+    """Verify at construction, by inverse kinematics, that the target is reachable."""
+
+    def __post_init__(self):
+        if self.driver not in DRIVERS:
+            raise ValueError(f"driver={self.driver!r} is not valid; choose one of {DRIVERS}")
+        if not isinstance(self.max_episode_steps, int) or isinstance(self.max_episode_steps, bool):
+            raise ValueError(
+                f"max_episode_steps must be a positive int, got {self.max_episode_steps!r}"
+            )
+        if not 1 <= self.max_episode_steps < 2**30:
+            raise ValueError(f"max_episode_steps={self.max_episode_steps} must be in [1, 2**30)")
+        if not (_finite(self.control_dt) and self.control_dt > 0):
+            raise ValueError(f"control_dt={self.control_dt!r} must be a finite number > 0 (s)")
+        if not (_finite(self.velocity) and 0 < self.velocity <= MAX_JOINT_SPEED):
+            raise ValueError(
+                f"velocity={self.velocity!r} is not valid: the real driver's servo speed must be "
+                f"in (0, {MAX_JOINT_SPEED}] rad/s (the MARA joint speed limit)"
+            )
+        _check_vector("target_pos", self.target_pos, 3)
+        _check_vector("target_quat", self.target_quat, 4)
+        if np.linalg.norm(self.target_quat) < 1e-6:
+            raise ValueError("target_quat must be a non-zero quaternion (w, x, y, z)")
+        if not isinstance(self.reward, RewardParams):
+            raise ValueError(
+                f"reward must be a mara_mjx.rewards.RewardParams, got {type(self.reward).__name__}"
+            )
+        for f in dataclasses.fields(RewardParams):
+            v = getattr(self.reward, f.name)
+            if not _finite(v):
+                raise ValueError(f"reward.{f.name}={v!r} must be a finite number")
+        if self.reward.done <= 0 or self.reward.alpha <= 0:
+            raise ValueError("reward.alpha and reward.done must be > 0")
+        if self.reward.gamma <= 0 or self.reward.beta <= 0:
+            raise ValueError("reward.beta and reward.gamma must be > 0")
+
+    def replace(self, **overrides: Any) -> EnvConfig:
+        """A new config with fields replaced; unknown names raise a clear error. Reward
+        hyperparameters may be given by name (alpha=..., beta=...) or as `reward=`."""
+        fields = {f.name for f in dataclasses.fields(self)}
+        reward_fields = {f.name for f in dataclasses.fields(RewardParams)}
+        reward_overrides = {k: overrides.pop(k) for k in list(overrides) if k in reward_fields}
+        unknown = sorted(set(overrides) - fields)
+        if unknown:
+            raise ValueError(
+                f"unknown env option(s) {unknown}; valid options are "
+                f"{sorted(fields | reward_fields)}"
+            )
+        if reward_overrides:
+            base = overrides.get("reward", self.reward)
+            overrides["reward"] = base.replace(**{k: float(v) for k, v in reward_overrides.items()})
+        for name in ("target_pos", "target_quat"):
+            if name in overrides:
+                overrides[name] = tuple(float(x) for x in np.asarray(overrides[name]).ravel())
+        return dataclasses.replace(self, **overrides)
+
+    def to_dict(self) -> dict[str, Any]:
+        out = dataclasses.asdict(self)
+        out["reward"] = {
+            f.name: float(getattr(self.reward, f.name)) for f in dataclasses.fields(RewardParams)
+        }
+        return out
+
+
+def _finite(x: Any) -> bool:
+    try:
+        return math.isfinite(float(x))
+    except (TypeError, ValueError):
+        return False
+
+
+def _check_vector(name: str, value: Any, size: int) -> None:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{name} must be {size} numbers, got {value!r}") from e
+    if arr.shape != (size,):
+        raise ValueError(f"{name} must have shape ({size},), got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}={arr.tolist()} must be finite")
+
+
+@struct.dataclass
+class EnvParams:
+    """Traced parameters of one environment (vmap over them to randomise per env)."""
+
+    target_pos: jax.Array  # (3,) m, world frame
+    target_quat: jax.Array  # (4,) (w, x, y, z), unit
+    velocity: jax.Array  # () rad/s, real driver servo speed
+    reward: RewardParams
+
+
+@struct.dataclass
+class EnvState:
+    """One environment's state. Batched states have a leading (N,) axis on every leaf."""
+
+    q: jax.Array  # (6,) rad, joint positions
+    qvel: jax.Array  # (6,) rad/s, joint velocities
+    ref: jax.Array  # (6,) rad, servo references (real driver)
+    obs: jax.Array  # (observation_size,)
+    reward: jax.Array  # ()
+    terminated: jax.Array  # () bool: physics blow-up only
+    truncated: jax.Array  # () bool: horizon reached
+    step: jax.Array  # () int32, steps taken in this episode (<= max_episode_steps)
+    key: jax.Array  # PRNG key of this environment
+    params: EnvParams
+    metrics: dict[str, jax.Array]
+
+    @property
+    def done(self) -> jax.Array:
+        return self.terminated | self.truncated

@@ -1,0 +1,129 @@
+"""N environments in one state: vmap, auto-reset and episode statistics.
+
+`BatchedEnv.step` steps every environment; those whose episode ended (terminated
+or truncated) are reset in the same call, brax-style: the returned `obs` is the
+first observation of the new episode, while `final_obs`, `episode_return`,
+`episode_length` and `episode_collisions` keep what the ended episode produced, and
+`reward`, `terminated`, `truncated` are those of the step that ended it.
+
+Reset strategy: a fresh `env.reset` with a new key for each ended episode (never a
+cached first state replayed forever), run under `lax.cond(any(done))`. The MARA
+tasks truncate all environments together at the horizon, so the reset branch runs
+about once every `max_episode_steps` steps and costs almost nothing on average.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from mara_mjx.envs.base import EnvParams, EnvState  # noqa: F401
+
+
+@struct.dataclass
+class BatchedState:
+    """State of N environments. `env_state` leaves have a leading (N,) axis."""
+
+    env_state: EnvState
+    obs: jax.Array  # (N, obs) observation to act on (after any auto-reset)
+    reward: jax.Array  # (N,)
+    terminated: jax.Array  # (N,) bool
+    truncated: jax.Array  # (N,) bool
+    final_obs: jax.Array  # (N, obs) last observation of the step's episode (pre-reset)
+    episode_return: jax.Array  # (N,) return of the episode that ended at this step, else 0
+    episode_length: jax.Array  # (N,) its length, else 0
+    episode_collisions: jax.Array  # (N,) its collision count, else 0
+    metrics: dict[str, jax.Array]  # per-env metrics of this step (pre-reset)
+
+    @property
+    def done(self) -> jax.Array:
+        return self.terminated | self.truncated
+
+
+class BatchedEnv:
+    """Vectorised, auto-resetting wrapper of one env for `num_envs` environments."""
+
+    def __init__(self, env, num_envs: int):
+        if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+        self.env = env
+        self.num_envs = num_envs
+        self._reset = jax.vmap(env.reset)
+        self._step = jax.vmap(env.step)
+
+    @property
+    def observation_size(self) -> int:
+        return self.env.observation_size
+
+    @property
+    def action_size(self) -> int:
+        return self.env.action_size
+
+    def reset(self, key: jax.Array, params: EnvParams | None = None) -> BatchedState:
+        """Reset all environments. `params`: None (env defaults), one EnvParams shared by
+        all, or an EnvParams with a leading (N,) axis (per-environment values)."""
+        keys = jax.random.split(key, self.num_envs)
+        params = self._batch_params(params)
+        s = self._reset(keys, params)
+        zeros = jnp.zeros(self.num_envs)
+        return BatchedState(
+            env_state=s,
+            obs=s.obs,
+            reward=s.reward,
+            terminated=s.terminated,
+            truncated=s.truncated,
+            final_obs=s.obs,
+            episode_return=zeros,
+            episode_length=zeros,
+            episode_collisions=zeros,
+            metrics=s.metrics,
+        )
+
+    def step(self, state: BatchedState, action: jax.Array) -> BatchedState:
+        """Step all environments with `action` (N, action_size); auto-reset ended ones."""
+        expected = (self.num_envs, self.env.action_size)
+        if action.shape != expected:
+            raise ValueError(f"action must have shape {expected}, got {action.shape}")
+        s = self._step(state.env_state, action)
+        done = s.terminated | s.truncated
+
+        def reset_done(s: EnvState) -> EnvState:
+            keys = jax.vmap(jax.random.split)(s.key)
+            fresh = self._reset(keys[:, 1], s.params)
+            fresh = fresh.replace(key=keys[:, 0])
+            pick = lambda new, old: jnp.where(  # noqa: E731
+                done.reshape(done.shape + (1,) * (new.ndim - 1)), new, old
+            )
+            return jax.tree.map(pick, fresh, s)
+
+        with jax.named_scope("auto_reset"):
+            new = jax.lax.cond(jnp.any(done), reset_done, lambda s: s, s)
+        m = s.metrics
+        return BatchedState(
+            env_state=new,
+            obs=new.obs,
+            reward=s.reward,
+            terminated=s.terminated,
+            truncated=s.truncated,
+            final_obs=s.obs,
+            episode_return=jnp.where(done, m["episode_return"], 0.0),
+            episode_length=jnp.where(done, m["episode_length"], 0.0),
+            episode_collisions=jnp.where(done, m["collisions"], 0.0),
+            metrics=m,
+        )
+
+    def _batch_params(self, params):
+        """Broadcast unbatched params to (N, ...); check batched ones have N rows."""
+        default = self.env.default_params
+        params = default if params is None else params
+        leaf, ref = jax.tree.leaves(params)[0], jax.tree.leaves(default)[0]
+        if jnp.ndim(leaf) == jnp.ndim(ref):
+            return jax.tree.map(
+                lambda x: jnp.broadcast_to(x, (self.num_envs, *jnp.shape(x))), params
+            )
+        if jnp.shape(leaf)[0] != self.num_envs:
+            raise ValueError(
+                f"batched params have {jnp.shape(leaf)[0]} rows, expected {self.num_envs}"
+            )
+        return params

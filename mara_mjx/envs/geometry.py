@@ -1,0 +1,40 @@
+"""Quaternion helpers, (w, x, y, z) convention as in MuJoCo. Broadcast over leading axes."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+
+def quat_mul(a: jax.Array, b: jax.Array) -> jax.Array:
+    """Hamilton product a (x) b."""
+    aw, ax, ay, az = jnp.moveaxis(a, -1, 0)
+    bw, bx, by, bz = jnp.moveaxis(b, -1, 0)
+    return jnp.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def quat_conj(q: jax.Array) -> jax.Array:
+    return q * jnp.array([1.0, -1.0, -1.0, -1.0], q.dtype)
+
+
+def quat_canonical(q: jax.Array) -> jax.Array:
+    """The same rotation with w >= 0."""
+    return jnp.where(q[..., :1] < 0, -q, q)
+
+
+def quat_to_euler(q: jax.Array) -> jax.Array:
+    """Roll, pitch, yaw (rad): the x, y, z angles of a static-axes x-y-z rotation (ROS tf's
+    default 'sxyz'), the convention of gym-gazebo2's per-axis orientation errors."""
+    w, x, y, z = jnp.moveaxis(q, -1, 0)
+    roll = jnp.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = jnp.arcsin(jnp.clip(2.0 * (w * y - z * x), -1.0, 1.0))
+    yaw = jnp.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return jnp.stack([roll, pitch, yaw], axis=-1)

@@ -1,0 +1,281 @@
+"""The four MARA tasks of gym-gazebo2 as one pure, jittable, vmappable environment.
+
+    task                 reward                                   observation (size)
+    MARA                 D - 1                                    q, e, v (12)
+    MARAOrient           D O - 1                                  q, e, quat_err, v (16)
+    MARACollision        D - 1 - C                                q, e, v (12)
+    MARACollisionOrient  D O - 1 - C                              q, e, quat_err, v (16)
+
+Observation (in this order):
+    q          (6,)  rad     joint positions motor1..motor6
+    e          (3,)  m       p_tcp - p_target, world frame
+    quat_err   (4,)          quat_tcp (x) conj(quat_target), (w, x, y, z), quat_tcp with w >= 0
+                             (Orient tasks only)
+    v          (3,)  m/s     TCP linear velocity J_pos(q) qvel, world frame
+
+Action (6,) rad: absolute joint position targets for motor1..motor6. Values outside
+the joint limits are clipped to them; non-finite entries are replaced by the current
+joint position (hold the pose) and counted in `metrics["nonfinite_actions"]`.
+
+Episode: reset puts every joint at 0 with zero velocity. Episodes truncate after
+`max_episode_steps` (1024); they terminate only if the physics state goes non-finite
+(counted in `metrics["physics_blowup"]`; the state is put back at the reset pose).
+On a collision (robot vs table, or two robot bodies not joined by a joint) the
+step's observation and reward are those of the colliding pose, then the arm is put
+back at the reset pose and the episode goes on; only the Collision tasks are
+penalised.
+
+Usage:
+    env = mara_mjx.make("MARACollisionOrient")
+    state = jax.jit(env.reset)(key)
+    state = jax.jit(env.step)(state, action)
+    states = jax.vmap(env.step)(states, actions)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mara_mjx import rewards
+from mara_mjx.envs import ik
+from mara_mjx.envs.arm import Arm, ArmPose
+from mara_mjx.envs.base import METRIC_KEYS, EnvConfig, EnvParams, EnvState
+from mara_mjx.envs.geometry import quat_conj, quat_mul, quat_to_euler
+
+
+@dataclasses.dataclass(frozen=True)
+class Task:
+    """What distinguishes the four tasks (static)."""
+
+    name: str
+    orientation: bool
+    """Reward and observe the orientation error."""
+    collision_penalty: bool
+    """Penalise collisions in the reward."""
+    beta: float
+    """Orientation exponent used in the paper's experiments for this task."""
+
+
+TASKS = {
+    "MARA": Task("MARA", orientation=False, collision_penalty=False, beta=1.5),
+    "MARAOrient": Task("MARAOrient", orientation=True, collision_penalty=False, beta=1.1),
+    "MARACollision": Task("MARACollision", orientation=False, collision_penalty=True, beta=1.5),
+    "MARACollisionOrient": Task(
+        "MARACollisionOrient", orientation=True, collision_penalty=True, beta=1.5
+    ),
+}
+
+_ARM: Arm | None = None
+
+
+def _shared_arm() -> Arm:
+    """The MJX model is the same for every task: build it once per process."""
+    global _ARM
+    if _ARM is None:
+        _ARM = Arm()
+    return _ARM
+
+
+class MaraEnv:
+    """One MARA task. See the module docstring for observation, action and episode."""
+
+    def __init__(self, task: Task, config: EnvConfig | None = None):
+        self.task = task
+        self.config = config if config is not None else default_config(task)
+        self.arm = _shared_arm()
+        cfg = self.config
+        if cfg.driver == "real":
+            n = cfg.control_dt / self.arm.timestep
+            if abs(n - round(n)) > 1e-6 or round(n) < 1:
+                raise ValueError(
+                    f"control_dt={cfg.control_dt} must be a positive multiple of the physics "
+                    f"timestep {self.arm.timestep} s for the real driver"
+                )
+        self.n_substeps = max(1, round(cfg.control_dt / self.arm.timestep))
+        if cfg.check_target:
+            ik.check_reachable(
+                self.arm.mj_model,
+                np.asarray(cfg.target_pos),
+                _unit(cfg.target_quat) if task.orientation else None,
+            )
+        self.default_params = self.make_params()
+
+    # ------------------------------------------------------------- properties
+    @property
+    def name(self) -> str:
+        return self.task.name
+
+    @property
+    def observation_size(self) -> int:
+        return 16 if self.task.orientation else 12
+
+    @property
+    def action_size(self) -> int:
+        return 6
+
+    @property
+    def joint_lower(self) -> np.ndarray:
+        """(6,) rad."""
+        return self.arm.lower.copy()
+
+    @property
+    def joint_upper(self) -> np.ndarray:
+        """(6,) rad."""
+        return self.arm.upper.copy()
+
+    @property
+    def max_episode_steps(self) -> int:
+        return self.config.max_episode_steps
+
+    def __repr__(self) -> str:
+        return f"MaraEnv({self.task.name}, driver={self.config.driver!r})"
+
+    def make_params(self, **overrides) -> EnvParams:
+        """Params pytree from this env's config, with host-side validated overrides
+        (target_pos, target_quat, velocity, alpha, beta, gamma, delta, eta, done)."""
+        cfg = self.config.replace(**overrides) if overrides else self.config
+        if overrides and cfg.check_target and ({"target_pos", "target_quat"} & set(overrides)):
+            ik.check_reachable(
+                self.arm.mj_model,
+                np.asarray(cfg.target_pos),
+                _unit(cfg.target_quat) if self.task.orientation else None,
+            )
+        f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+        return EnvParams(
+            target_pos=f32(cfg.target_pos),
+            target_quat=f32(_unit(cfg.target_quat)),
+            velocity=f32(cfg.velocity),
+            reward=jax.tree.map(f32, cfg.reward),
+        )
+
+    # ------------------------------------------------------------------- API
+    def reset(self, key: jax.Array, params: EnvParams | None = None) -> EnvState:
+        """All joints at 0, at rest. `params` defaults to `self.default_params`."""
+        params = self.default_params if params is None else params
+        q = jnp.zeros(6)
+        pose = self.arm.pose(q)
+        obs, metrics, _ = self._observe(q, pose, jnp.zeros(6), params)
+        zero = jnp.zeros(())
+        metrics.update(
+            collided=zero,
+            collisions=zero,
+            nonfinite_actions=zero,
+            physics_blowup=zero,
+            episode_return=zero,
+            episode_length=zero,
+        )
+        return EnvState(
+            q=q,
+            qvel=jnp.zeros(6),
+            ref=jnp.zeros(6),
+            obs=obs,
+            reward=zero,
+            terminated=jnp.array(False),
+            truncated=jnp.array(False),
+            step=jnp.zeros((), jnp.int32),
+            key=key,
+            params=params,
+            metrics={k: metrics[k] for k in METRIC_KEYS},
+        )
+
+    def step(self, state: EnvState, action: jax.Array) -> EnvState:
+        """One control period. `action` (6,) rad, absolute joint targets."""
+        cfg, params = self.config, state.params
+        action = jnp.asarray(action)
+        if action.shape != (6,):
+            raise ValueError(
+                f"action must have shape (6,) (joint targets motor1..motor6), got {action.shape};"
+                " use jax.vmap(env.step) or mara_mjx.BatchedEnv for batches"
+            )
+        with jax.named_scope("action"):
+            finite = jnp.isfinite(action)
+            command = jnp.where(finite, action, state.q)
+            command = jnp.clip(command, self.arm.lower, self.arm.upper)
+            n_nonfinite = jnp.sum(~finite).astype(jnp.float32)
+
+        if cfg.driver == "train":
+            q, qvel, pose = self.arm.train_step(state.q, command, cfg.control_dt)
+            ref = command
+        else:
+            q, qvel, ref, pose = self.arm.real_step(
+                state.q, state.qvel, state.ref, command, params.velocity, self.n_substeps
+            )
+
+        with jax.named_scope("observation"):
+            obs, metrics, theta = self._observe(q, pose, qvel, params)
+        with jax.named_scope("reward"):
+            reward = rewards.reward(
+                metrics["distance"],
+                theta,
+                pose.collided,
+                params.reward,
+                orientation=self.task.orientation,
+                collision=self.task.collision_penalty,
+            )
+
+        with jax.named_scope("reset_rules"):
+            blowup = ~(
+                jnp.all(jnp.isfinite(q)) & jnp.all(jnp.isfinite(qvel)) & jnp.all(jnp.isfinite(obs))
+            )
+            obs = jnp.where(blowup, state.obs, obs)
+            reward = jnp.where(jnp.isfinite(reward), reward, 0.0)
+            # Collision (or blow-up): back to the reset pose, at rest.
+            back = pose.collided | blowup
+            q = jnp.where(back, 0.0, q)
+            qvel = jnp.where(back, 0.0, qvel)
+            ref = jnp.where(back, 0.0, ref)
+
+        step = state.step + 1
+        collided = pose.collided.astype(jnp.float32)
+        metrics.update(
+            collided=collided,
+            collisions=state.metrics["collisions"] + collided,
+            nonfinite_actions=n_nonfinite,
+            physics_blowup=blowup.astype(jnp.float32),
+            episode_return=state.metrics["episode_return"] + reward,
+            episode_length=step.astype(jnp.float32),
+        )
+        return state.replace(
+            q=q,
+            qvel=qvel,
+            ref=ref,
+            obs=obs,
+            reward=reward,
+            terminated=blowup,
+            truncated=step >= cfg.max_episode_steps,
+            step=step,
+            metrics={k: metrics[k] for k in METRIC_KEYS},
+        )
+
+    # -------------------------------------------------------------- internals
+    def _observe(
+        self, q: jax.Array, pose: ArmPose, qvel: jax.Array, params: EnvParams
+    ) -> tuple[jax.Array, dict[str, jax.Array], jax.Array]:
+        """Observation, per-step error metrics and theta at pose `pose` (joint positions q)."""
+        e = pose.tcp_pos - params.target_pos
+        quat_err = quat_mul(pose.tcp_quat, quat_conj(params.target_quat))
+        v = pose.tcp_jac @ qvel
+        theta = rewards.orientation_angle(quat_err)
+        parts = [q, e, quat_err, v] if self.task.orientation else [q, e, v]
+        metrics = {
+            "distance": rewards.rms_distance(e),
+            "position_error": jnp.abs(e),
+            "angle": theta,
+            "orientation_error": jnp.abs(quat_to_euler(quat_err)),
+        }
+        return jnp.concatenate(parts), metrics, theta
+
+
+def _unit(quat) -> np.ndarray:
+    quat = np.asarray(quat, dtype=float)
+    return quat / np.linalg.norm(quat)
+
+
+def default_config(task: Task) -> EnvConfig:
+    """The paper's settings for a task (per-task beta)."""
+    cfg = EnvConfig()
+    return cfg.replace(beta=task.beta)
