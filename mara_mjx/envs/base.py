@@ -63,6 +63,10 @@ class EnvConfig:
     """Target TCP orientation (w, x, y, z), normalised on use. Orient tasks only."""
     reward: RewardParams = dataclasses.field(default_factory=RewardParams)
     """Reward hyperparameters (alpha, beta, gamma, delta, eta, done)."""
+    reset_noise: float = 0.0
+    """Half-width (rad) of a uniform perturbation of the reset joint positions. 0 (the
+    paper's reset, all joints at 0) for training; evaluation uses a small value so that
+    its episodes differ, as the paper's Gazebo runs did."""
     check_target: bool = True
     """Verify at construction, by inverse kinematics, that the target is reachable."""
 
@@ -82,6 +86,8 @@ class EnvConfig:
                 f"velocity={self.velocity!r} is not valid: the real driver's servo speed must be "
                 f"in (0, {MAX_JOINT_SPEED}] rad/s (the MARA joint speed limit)"
             )
+        if not (_finite(self.reset_noise) and 0 <= self.reset_noise <= 0.5):
+            raise ValueError(f"reset_noise={self.reset_noise!r} must be in [0, 0.5] rad")
         _check_vector("target_pos", self.target_pos, 3)
         _check_vector("target_quat", self.target_quat, 4)
         if np.linalg.norm(self.target_quat) < 1e-6:
@@ -152,6 +158,7 @@ class EnvParams:
     target_pos: jax.Array  # (3,) m, world frame
     target_quat: jax.Array  # (4,) (w, x, y, z), unit
     velocity: jax.Array  # () rad/s, real driver servo speed
+    reset_noise: jax.Array  # () rad, half-width of the uniform reset perturbation
     reward: RewardParams
 
 

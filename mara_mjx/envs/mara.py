@@ -136,7 +136,8 @@ class MaraEnv:
 
     def make_params(self, **overrides) -> EnvParams:
         """Params pytree from this env's config, with host-side validated overrides
-        (target_pos, target_quat, velocity, alpha, beta, gamma, delta, eta, done)."""
+        (target_pos, target_quat, velocity, reset_noise, alpha, beta, gamma, delta, eta,
+        done)."""
         cfg = self.config.replace(**overrides) if overrides else self.config
         if overrides and cfg.check_target and ({"target_pos", "target_quat"} & set(overrides)):
             ik.check_reachable(
@@ -149,14 +150,18 @@ class MaraEnv:
             target_pos=f32(cfg.target_pos),
             target_quat=f32(_unit(cfg.target_quat)),
             velocity=f32(cfg.velocity),
+            reset_noise=f32(cfg.reset_noise),
             reward=jax.tree.map(f32, cfg.reward),
         )
 
     # ------------------------------------------------------------------- API
     def reset(self, key: jax.Array, params: EnvParams | None = None) -> EnvState:
-        """All joints at 0, at rest. `params` defaults to `self.default_params`."""
+        """All joints at 0 (plus `reset_noise`), at rest. `params` defaults to
+        `self.default_params`."""
         params = self.default_params if params is None else params
-        q = jnp.zeros(6)
+        key, noise_key = jax.random.split(key)
+        noise = jax.random.uniform(noise_key, (6,), minval=-1.0, maxval=1.0)
+        q = noise * params.reset_noise
         pose = self.arm.pose(q)
         obs, metrics, _ = self._observe(q, pose, jnp.zeros(6), params)
         zero = jnp.zeros(())
@@ -171,7 +176,7 @@ class MaraEnv:
         return EnvState(
             q=q,
             qvel=jnp.zeros(6),
-            ref=jnp.zeros(6),
+            ref=q,
             obs=obs,
             reward=zero,
             terminated=jnp.array(False),
