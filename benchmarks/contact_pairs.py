@@ -17,29 +17,12 @@ prints the <pair> lines to paste into the <contact> block, with the coverage.
 from __future__ import annotations
 
 import argparse
-import itertools
-from pathlib import Path
 
 import mujoco
 import numpy as np
 
-XML = Path(__file__).resolve().parents[1] / "assets" / "mara.xml"
-
-
-def candidate_pairs(model: mujoco.MjModel) -> list[tuple[str, str]]:
-    """Every pair of collision geoms the spec counts as a collision."""
-    names = [model.geom(i).name for i in range(model.ngeom) if model.geom_group[i] == 0]
-    names = ["table", *[n for n in names if n and n != "table"]]
-    body = {n: model.geom_bodyid[model.geom(n).id] for n in names}
-
-    def joined(a: int, b: int) -> bool:
-        return a == b or model.body_parentid[a] == b or model.body_parentid[b] == a
-
-    return [
-        (a, b)
-        for a, b in itertools.combinations(names, 2)
-        if not joined(body[a], body[b]) and {a, b} != {"table", "base"}
-    ]
+from mara_mjx.envs.arm import XML_PATH as XML
+from mara_mjx.envs.arm import candidate_pairs, with_pairs
 
 
 def main() -> None:
@@ -50,10 +33,7 @@ def main() -> None:
 
     base = mujoco.MjModel.from_xml_path(str(XML))
     cands = candidate_pairs(base)
-    text = XML.read_text()
-    start, end = text.index("<contact>") + len("<contact>"), text.index("</contact>")
-    all_pairs = "\n".join(f'<pair geom1="{a}" geom2="{b}"/>' for a, b in cands)
-    model = mujoco.MjModel.from_xml_string(text[:start] + all_pairs + text[end:])
+    model = mujoco.MjModel.from_xml_string(with_pairs(XML.read_text(), cands))
     data = mujoco.MjData(model)
     index = {frozenset(p): k for k, p in enumerate(cands)}
 

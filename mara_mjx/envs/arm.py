@@ -20,6 +20,7 @@ Drivers (spec section 5):
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 from typing import NamedTuple
 
@@ -54,6 +55,32 @@ def load_model(xml_path: str | Path = XML_PATH) -> mujoco.MjModel:
     if not path.is_file():
         raise FileNotFoundError(f"MJCF model not found: {path}")
     return mujoco.MjModel.from_xml_path(str(path))
+
+
+def candidate_pairs(model: mujoco.MjModel) -> list[tuple[str, str]]:
+    """Every pair of collision geoms (group 0, plus the table) that the spec counts as a
+    collision: robot vs table, and robot bodies not joined by a joint; not the base
+    resting on the table. assets/mara.xml lists a minimal covering subset of these
+    (benchmarks/contact_pairs.py)."""
+    names = [model.geom(i).name for i in range(model.ngeom) if model.geom_group[i] == 0]
+    names = ["table", *[n for n in names if n and n != "table"]]
+    body = {n: model.geom_bodyid[model.geom(n).id] for n in names}
+
+    def joined(a: int, b: int) -> bool:
+        return a == b or model.body_parentid[a] == b or model.body_parentid[b] == a
+
+    return [
+        (a, b)
+        for a, b in itertools.combinations(names, 2)
+        if not joined(body[a], body[b]) and {a, b} != {"table", "base"}
+    ]
+
+
+def with_pairs(xml_text: str, pairs: list[tuple[str, str]]) -> str:
+    """The MJCF text with its <contact> block replaced by `pairs`."""
+    start, end = xml_text.index("<contact>") + len("<contact>"), xml_text.index("</contact>")
+    body = "\n".join(f'    <pair geom1="{a}" geom2="{b}"/>' for a, b in pairs)
+    return xml_text[:start] + "\n" + body + "\n  " + xml_text[end:]
 
 
 class Arm:
