@@ -4,7 +4,9 @@ Times, at each size, under vmap + lax.scan with random joint positions:
   kinematics   mjx.kinematics only
   pose         kinematics + mjx.collision over the listed pairs (Arm.pose)
   env.step     the task step (pose + observation + reward + reset rules), no auto-reset
-  batched      BatchedEnv.step (env.step + auto-reset + episode statistics)
+  batched      BatchedEnv.step (env.step + auto-reset + episode statistics), the
+               default "select" reset strategy
+  batched_cond the same with reset_strategy="cond"
 
     python benchmarks/profile_step.py --task MARACollisionOrient --sizes 16384 65536
 
@@ -53,6 +55,7 @@ def main() -> None:
     records = []
     for n in args.sizes:
         benv = BatchedEnv(env, n)
+        benv_cond = BatchedEnv(env, n, reset_strategy="cond")
 
         def scan(stage):
             def body(carry, _):
@@ -79,6 +82,7 @@ def main() -> None:
             "pose": (scan(pose), jnp.zeros(())),
             "env.step": (scan(lambda s, a: (jax.vmap(env.step)(s, a), None)), states),
             "batched": (scan(lambda s, a: (benv.step(s, a), None)), bstate),
+            "batched_cond": (scan(lambda s, a: (benv_cond.step(s, a), None)), bstate),
         }
         for name, (fn, x0) in stages.items():
             first, med, _ = timed(fn, x0, jax.random.key(1))

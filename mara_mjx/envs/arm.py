@@ -102,22 +102,27 @@ class Arm:
         self.num_contacts = int(self._data0._impl.contact.dist.shape[0])
 
     # ------------------------------------------------------------------ poses
-    def _pose(self, d: mjx.Data) -> ArmPose:
-        """TCP pose, its positional Jacobian and the collision flag of a posed `d`."""
+    def _pose(self, d: mjx.Data, collided: jax.Array) -> ArmPose:
+        """TCP pose and its positional Jacobian of a posed `d`."""
         tcp_pos = d.site_xpos[self.tcp_site]
         tcp_quat = quat_canonical(d.xquat[self.flange_body])
         # Revolute joints: column i of J_pos is axis_i x (p_tcp - anchor_i).
         jac = jnp.cross(d.xaxis, tcp_pos[None, :] - d.xanchor).T
-        collided = jnp.any(d._impl.contact.dist < 0.0) if self.num_contacts else jnp.array(False)
         return ArmPose(tcp_pos, tcp_quat, jac, collided)
 
-    def pose(self, q: jax.Array) -> ArmPose:
-        """Kinematics and collision detection at joint positions q (6,)."""
+    def _penetrating(self, d: mjx.Data) -> jax.Array:
+        return jnp.any(d._impl.contact.dist < 0.0) if self.num_contacts else jnp.array(False)
+
+    def pose(self, q: jax.Array, collide: bool = True) -> ArmPose:
+        """Kinematics, and collision detection unless `collide` is False (then `collided`
+        is False), at joint positions q (6,). Collision costs about 15x kinematics."""
         with jax.named_scope("kinematics"):
             d = mjx.kinematics(self.mjx_model, self._data0.replace(qpos=q))
+        if not collide:
+            return self._pose(d, jnp.array(False))
         with jax.named_scope("collision"):
             d = mjx.collision(self.mjx_model, d)
-        return self._pose(d)
+        return self._pose(d, self._penetrating(d))
 
     # ---------------------------------------------------------------- drivers
     def train_step(
@@ -147,7 +152,7 @@ class Arm:
             d, ref, hit = carry
             ref = ref + jnp.clip(command - ref, -max_move, max_move)
             d = mjx.step(self.mjx_model, d.replace(ctrl=ref))
-            hit = hit | jnp.any(d._impl.contact.dist < 0.0)
+            hit = hit | self._penetrating(d)
             return (d, ref, hit), None
 
         d = self._data0.replace(qpos=q, qvel=qvel, ctrl=ref)

@@ -6,10 +6,15 @@ first observation of the new episode, while `final_obs`, `episode_return`,
 `episode_length` and `episode_collisions` keep what the ended episode produced, and
 `reward`, `terminated`, `truncated` are those of the step that ended it.
 
-Reset strategy: a fresh `env.reset` with a new key for each ended episode (never a
-cached first state replayed forever), run under `lax.cond(any(done))`. The MARA
-tasks truncate all environments together at the horizon, so the reset branch runs
-about once every `max_episode_steps` steps and costs almost nothing on average.
+Reset strategy: always a fresh `env.reset` with a new key for each ended episode
+(never a cached first state replayed forever). Two ways to run it, a named choice
+measured by `benchmarks/profile_step.py` (see benchmarks/NOTES.md):
+  * "select" (default): compute a reset for every environment each step and pick it
+    with `jnp.where(done, ...)`. The MARA reset is kinematics only (about 1/15 of a
+    step), and nothing waits on the host.
+  * "cond": run the resets under `lax.cond(any(done))`. The tasks truncate all
+    environments together, so the branch is rarely taken, but on GPU XLA reads the
+    predicate back to the host every step, which stalls the pipeline.
 """
 
 from __future__ import annotations
@@ -44,9 +49,17 @@ class BatchedState:
 class BatchedEnv:
     """Vectorised, auto-resetting wrapper of one env for `num_envs` environments."""
 
-    def __init__(self, env, num_envs: int):
+    RESET_STRATEGIES = ("select", "cond")
+
+    def __init__(self, env, num_envs: int, reset_strategy: str = "select"):
         if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+        if reset_strategy not in self.RESET_STRATEGIES:
+            raise ValueError(
+                f"reset_strategy={reset_strategy!r} is not valid; choose one of "
+                f"{self.RESET_STRATEGIES}"
+            )
+        self.reset_strategy = reset_strategy
         self.env = env
         self.num_envs = num_envs
         self._reset = jax.vmap(env.reset)
@@ -98,7 +111,10 @@ class BatchedEnv:
             return jax.tree.map(pick, fresh, s)
 
         with jax.named_scope("auto_reset"):
-            new = jax.lax.cond(jnp.any(done), reset_done, lambda s: s, s)
+            if self.reset_strategy == "cond":
+                new = jax.lax.cond(jnp.any(done), reset_done, lambda s: s, s)
+            else:
+                new = reset_done(s)
         m = s.metrics
         return BatchedState(
             env_state=new,

@@ -1,0 +1,64 @@
+"""PPO (OpenAI baselines ppo2 semantics) for the MARA tasks, many environments per device.
+
+Pure pieces:        gae, ppo_loss, ActorCritic, gaussian_log_prob, gaussian_entropy,
+                    RunningStats, update_stats, normalize
+Training:           make_train(env, PPOConfig, updates_per_call) -> Trainer(init, run, ...)
+Config:             PPOConfig, RunConfig, EvalConfig, PRESETS ("default", "paper", "ros2learn")
+Policy artefact:    make_policy(checkpoint_or_params, config) -> Policy (fn(obs) -> action)
+Checkpoints:        save_checkpoint, load_checkpoint, find_checkpoint
+Evaluation:         evaluate(env, policy, EvalConfig) -> EvalResult, format_table
+
+CLIs: `python -m mara_mjx.train --env MARA`, `python -m mara_mjx.evaluate CHECKPOINT`.
+"""
+
+from mara_mjx.ppo.checkpoint import (
+    CheckpointError,
+    find_checkpoint,
+    load_checkpoint,
+    save_checkpoint,
+)
+from mara_mjx.ppo.config import PRESETS, EvalConfig, PPOConfig, RunConfig
+from mara_mjx.ppo.evaluation import PAPER_RESULTS, EvalResult, evaluate, format_table
+from mara_mjx.ppo.losses import LossInfo, gae, ppo_loss
+from mara_mjx.ppo.networks import (
+    MLP,
+    ActorCritic,
+    RunningStats,
+    gaussian_entropy,
+    gaussian_log_prob,
+    normalize,
+    update_stats,
+)
+from mara_mjx.ppo.policy import Policy, make_policy
+from mara_mjx.ppo.train import RunnerState, Trainer, make_lr_schedule, make_train
+
+__all__ = [
+    "MLP",
+    "PAPER_RESULTS",
+    "PRESETS",
+    "ActorCritic",
+    "CheckpointError",
+    "EvalConfig",
+    "EvalResult",
+    "LossInfo",
+    "PPOConfig",
+    "Policy",
+    "RunConfig",
+    "RunnerState",
+    "RunningStats",
+    "Trainer",
+    "evaluate",
+    "find_checkpoint",
+    "format_table",
+    "gae",
+    "gaussian_entropy",
+    "gaussian_log_prob",
+    "load_checkpoint",
+    "make_lr_schedule",
+    "make_policy",
+    "make_train",
+    "normalize",
+    "ppo_loss",
+    "save_checkpoint",
+    "update_stats",
+]

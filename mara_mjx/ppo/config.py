@@ -1,0 +1,301 @@
+"""PPO configuration: frozen dataclasses, one docstring per field, presets as instances.
+
+    PPOConfig    the algorithm and the networks (everything `make_train` compiles)
+    RunConfig    the host loop: output folder, checkpoints, logging, jit granularity
+    EvalConfig   the paper's accuracy evaluation (10 episodes, 5 mm stop condition)
+    PRESETS      {"default", "paper", "ros2learn"} -> PPOConfig
+
+The CLIs (`python -m mara_mjx.train`, `python -m mara_mjx.evaluate`) generate one flag per
+field from these classes (`mara_mjx.ppo.flags`), with the field docstrings as help text.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import functools
+import inspect
+import math
+import textwrap
+from typing import Any, Literal, TypeVar
+
+LR_SCHEDULES = ("linear", "exp", "constant")
+# The optimiser's step counter is an int32 inside the jitted update.
+_MAX_OPTIMIZER_STEPS = 2**31 - 1
+
+C = TypeVar("C")
+
+
+class _ConfigMixin:
+    """to_dict / from_dict / replace shared by the config dataclasses."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return {f.name: _plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+    @classmethod
+    def from_dict(cls: type[C], data: dict[str, Any]) -> C:
+        """Build from `to_dict()` output (JSON lists become tuples); unknown keys raise."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise ValueError(
+                f"unknown {cls.__name__} field(s) {unknown}; valid fields are {sorted(names)}"
+            )
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+
+    def replace(self: C, **overrides: Any) -> C:
+        """A new config with `overrides` applied (and validated); unknown names raise."""
+        names = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(overrides) - names)
+        if unknown:
+            raise ValueError(
+                f"unknown {type(self).__name__} field(s) {unknown}; valid fields are "
+                f"{sorted(names)}"
+            )
+        return dataclasses.replace(self, **overrides)
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig(_ConfigMixin):
+    """PPO as in OpenAI baselines ppo2 (the paper's implementation), batched over envs.
+
+    Defaults are the paper's hyperparameters (spec section 7); see `PRESETS`.
+    One update collects `num_envs * num_steps` transitions, then runs `update_epochs`
+    passes of `num_minibatches` Adam steps over them.
+    """
+
+    num_envs: int = 1
+    """Environments stepped in parallel (one BatchedEnv)."""
+    num_steps: int = 2048
+    """Steps per environment per rollout; a batch is num_envs * num_steps transitions."""
+    total_timesteps: int = 100_000_000
+    """Training budget in env steps; updates = total_timesteps // (num_envs * num_steps)."""
+    num_minibatches: int = 32
+    """Minibatches per epoch; must divide num_envs * num_steps."""
+    update_epochs: int = 10
+    """Passes over each batch (reshuffled every pass)."""
+    gamma: float = 0.99
+    """Discount factor."""
+    gae_lambda: float = 0.95
+    """GAE lambda."""
+    clip_eps: float = 0.2
+    """PPO clip range of the probability ratio (also of the value change if clip_value)."""
+    clip_value: bool = True
+    """Clipped value loss (baselines ppo2): max of the plain and the clipped squared error."""
+    vf_coef: float = 0.5
+    """Value loss coefficient."""
+    ent_coef: float = 0.0
+    """Entropy bonus coefficient."""
+    max_grad_norm: float = 0.5
+    """Global gradient-norm clip."""
+    adam_eps: float = 1e-5
+    """Adam epsilon (baselines ppo2 uses 1e-5)."""
+    learning_rate: float = 3e-4
+    """Initial Adam learning rate."""
+    lr_schedule: Literal["linear", "exp", "constant"] = "linear"
+    """'linear': lr * (1 - update / updates), to 0 at the end (baselines). 'exp':
+    max(lr * exp(-lr_decay_rate * update), lr_floor) (ROS2Learn). 'constant': lr. The rate
+    is constant within one update."""
+    lr_decay_rate: float = 0.001918
+    """Per-update decay rate of the 'exp' schedule."""
+    lr_floor: float = 1e-4
+    """Lower bound of the 'exp' schedule."""
+    hidden_sizes: tuple[int, ...] = (64, 64)
+    """Hidden layer widths of the policy MLP and of the separate value MLP (tanh)."""
+    init_log_std: float = 0.0
+    """Initial value of the state-independent log standard deviation (rad)."""
+    normalize_obs: bool = False
+    """Normalise observations by running mean and variance of the rollouts (Welford); the
+    statistics are saved with the policy and applied by make_policy."""
+    obs_clip: float = 10.0
+    """With normalize_obs: clip normalised observations to [-obs_clip, obs_clip]."""
+    normalize_advantages: bool = True
+    """Normalise advantages per minibatch (baselines ppo2)."""
+    seed: int = 0
+    """PRNG seed of initialisation, environments, action noise and shuffling."""
+
+    def __post_init__(self):
+        for name in ("num_envs", "num_steps", "total_timesteps", "num_minibatches"):
+            _check_int(name, getattr(self, name), minimum=1)
+        _check_int("update_epochs", self.update_epochs, minimum=1)
+        _check_int("seed", self.seed, minimum=0)
+        if self.num_minibatches > self.batch_size or self.batch_size % self.num_minibatches:
+            divisors = [
+                d for d in range(1, min(self.batch_size, 4096) + 1) if not self.batch_size % d
+            ]
+            raise ValueError(
+                f"num_minibatches={self.num_minibatches} does not divide the batch of "
+                f"num_envs * num_steps = {self.num_envs} * {self.num_steps} = {self.batch_size} "
+                f"transitions; choose num_minibatches among {divisors[:24]}"
+                + (" ..." if len(divisors) > 24 else "")
+            )
+        if self.total_timesteps < self.batch_size:
+            raise ValueError(
+                f"total_timesteps={self.total_timesteps} is less than one update of "
+                f"num_envs * num_steps = {self.batch_size} env steps"
+            )
+        steps = self.num_updates * self.update_epochs * self.num_minibatches
+        if steps > _MAX_OPTIMIZER_STEPS:
+            raise ValueError(
+                f"{self.num_updates} updates x {self.update_epochs} epochs x "
+                f"{self.num_minibatches} minibatches = {steps} optimiser steps overflows the "
+                "int32 step counter; use fewer updates or larger batches"
+            )
+        _check_range("gamma", self.gamma, 0.0, 1.0, low_open=True)
+        _check_range("gae_lambda", self.gae_lambda, 0.0, 1.0)
+        for name in ("clip_eps", "max_grad_norm", "adam_eps", "learning_rate", "obs_clip"):
+            _check_range(name, getattr(self, name), 0.0, math.inf, low_open=True)
+        for name in ("vf_coef", "ent_coef", "lr_decay_rate", "lr_floor"):
+            _check_range(name, getattr(self, name), 0.0, math.inf)
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(
+                f"lr_schedule={self.lr_schedule!r} is not valid; choose one of {LR_SCHEDULES}"
+            )
+        if (
+            not isinstance(self.hidden_sizes, tuple)
+            or not self.hidden_sizes
+            or not all(_is_int(h) and h >= 1 for h in self.hidden_sizes)
+        ):
+            raise ValueError(
+                f"hidden_sizes={self.hidden_sizes!r} must be a non-empty tuple of positive ints"
+            )
+        _check_range("init_log_std", self.init_log_std, -20.0, 5.0)
+        for name in ("clip_value", "normalize_obs", "normalize_advantages"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
+
+    @property
+    def batch_size(self) -> int:
+        """Transitions per update: num_envs * num_steps."""
+        return self.num_envs * self.num_steps
+
+    @property
+    def minibatch_size(self) -> int:
+        return self.batch_size // self.num_minibatches
+
+    @property
+    def num_updates(self) -> int:
+        """PPO updates in the run: total_timesteps // batch_size (as baselines)."""
+        return self.total_timesteps // self.batch_size
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig(_ConfigMixin):
+    """The host loop of `python -m mara_mjx.train` (none of it changes the results)."""
+
+    out: str = ""
+    """Run folder for logs, checkpoints and plots; '' means runs/<env>-<timestamp>."""
+    checkpoint_every: int = 50
+    """Write a checkpoint every this many updates (and at the end)."""
+    keep_checkpoints: int = 3
+    """Periodic checkpoints to keep (the newest); the final one is always kept."""
+    updates_per_call: int = 10
+    """PPO updates per jitted call (a lax.scan on device); the host logs all of them after
+    each call, so wall-clock columns have this granularity."""
+    progress: bool = True
+    """Show a progress bar (tqdm, on stderr)."""
+    tensorboard: bool = True
+    """Write TensorBoard event files (tensorboardX) under <out>/tb."""
+    evaluate: bool = True
+    """At the end, run the accuracy evaluation (EvalConfig) and save eval.json."""
+    plots: bool = True
+    """At the end, save PNG plots of mean reward, policy entropy and error vs env steps."""
+
+    def __post_init__(self):
+        if not isinstance(self.out, str):
+            raise ValueError(f"out must be a path string, got {self.out!r}")
+        _check_int("checkpoint_every", self.checkpoint_every, minimum=1)
+        _check_int("keep_checkpoints", self.keep_checkpoints, minimum=1)
+        _check_int("updates_per_call", self.updates_per_call, minimum=1)
+        for name in ("progress", "tensorboard", "evaluate", "plots"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class EvalConfig(_ConfigMixin):
+    """The paper's accuracy evaluation: the deterministic policy (the Gaussian mean) in
+    `episodes` episodes, each stopped at the first step where every axis of the position
+    error is within `tolerance_mm`, or at the horizon."""
+
+    episodes: int = 10
+    """Episodes, run in parallel; episode i resets from key split(key(seed), episodes)[i]."""
+    noise: float = 0.02
+    """Half-width (rad) of the uniform perturbation of the reset joint positions (the env's
+    reset_noise) so that the episodes differ, as the paper's Gazebo runs did."""
+    tolerance_mm: float = 5.0
+    """Stop condition: every axis of |e| within this (mm); 0 runs to the horizon."""
+    seed: int = 0
+    """Seed of the episodes' reset keys."""
+
+    def __post_init__(self):
+        _check_int("episodes", self.episodes, minimum=1)
+        _check_int("seed", self.seed, minimum=0)
+        _check_range("noise", self.noise, 0.0, 0.5)
+        _check_range("tolerance_mm", self.tolerance_mm, 0.0, math.inf)
+
+
+PRESETS: dict[str, PPOConfig] = {
+    # Tuned for thousands of environments on one GPU (a starting point; override freely).
+    "default": PPOConfig(
+        num_envs=2048,
+        num_steps=32,
+        total_timesteps=50_000_000,
+        num_minibatches=32,
+        update_epochs=4,
+        normalize_obs=True,
+    ),
+    # The paper's appendix: baselines ppo2, one environment (spec section 7).
+    "paper": PPOConfig(),
+    # The later ROS2Learn configuration of the same group.
+    "ros2learn": PPOConfig(
+        num_steps=1024,
+        num_minibatches=4,
+        hidden_sizes=(16, 16),
+        learning_rate=3e-3,
+        lr_schedule="exp",
+        lr_decay_rate=0.001918,
+        lr_floor=1e-4,
+        clip_eps=0.25,
+        vf_coef=1.0,
+    ),
+}
+
+
+@functools.cache
+def field_docs(cls: type) -> dict[str, str]:
+    """The attribute docstrings of a dataclass (the string literal after each field),
+    read from its source; {} where the source is unavailable."""
+    try:
+        tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+    except (OSError, TypeError):
+        return {}
+    body = tree.body[0].body
+    docs = {}
+    for node, after in zip(body, body[1:], strict=False):
+        is_field = isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
+        is_doc = isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
+        if is_field and is_doc and isinstance(after.value.value, str):
+            docs[node.target.id] = " ".join(after.value.value.split())
+    return docs
+
+
+def _plain(value: Any) -> Any:
+    return list(value) if isinstance(value, tuple) else value
+
+
+def _is_int(x: Any) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _check_int(name: str, value: Any, minimum: int) -> None:
+    if not _is_int(value) or value < minimum:
+        raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
+
+
+def _check_range(name: str, value: Any, low: float, high: float, low_open: bool = False) -> None:
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    ok = ok and (value > low if low_open else value >= low) and value <= high
+    if not ok:
+        bracket = "(" if low_open else "["
+        raise ValueError(f"{name}={value!r} must be a finite number in {bracket}{low}, {high}]")

@@ -1,0 +1,116 @@
+"""Command-line flags generated from config dataclasses (no flag is written by hand).
+
+Every field of a section gets `--section.field`; it also gets the short `--field` when no
+earlier section (in the order given) has a field of that name, so `--gamma` is the PPO
+discount and the reward's gamma is `--env.gamma`. The help text is the field's
+docstring. Flags default to "not given": only what the user typed becomes an override.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import types
+import typing
+from collections.abc import Sequence
+from typing import Any, Literal
+
+from mara_mjx.ppo.config import field_docs
+
+
+@dataclasses.dataclass(frozen=True)
+class Section:
+    """The fields of `cls` (minus `exclude`) as flags under `--{name}.`."""
+
+    name: str
+    cls: type
+    defaults: Any = None
+    """An instance whose values the help shows as defaults (None: the class defaults)."""
+    exclude: tuple[str, ...] = ()
+
+    def field_names(self) -> list[str]:
+        return [f.name for f in dataclasses.fields(self.cls) if f.name not in self.exclude]
+
+
+def parse_bool(text: str) -> bool:
+    value = text.strip().lower()
+    if value in ("true", "1", "yes", "on"):
+        return True
+    if value in ("false", "0", "no", "off"):
+        return False
+    raise argparse.ArgumentTypeError(f"expected true or false, got {text!r}")
+
+
+def _argparse_kwargs(hint: Any) -> dict[str, Any]:
+    """type / nargs / choices / metavar for a field's type hint."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if hint is bool:
+        return {"type": parse_bool, "metavar": "{true,false}"}
+    if hint in (int, float, str):
+        return {"type": hint}
+    if origin is Literal:
+        return {"type": type(args[0]), "choices": list(args)}
+    if origin is tuple:
+        if len(args) == 2 and args[1] is Ellipsis:
+            return {"type": args[0], "nargs": "+"}
+        return {"type": args[0], "nargs": len(args)}
+    if origin in (typing.Union, types.UnionType):
+        for simple in (float, int, str):  # e.g. `jax.Array | float`
+            if simple in args:
+                return {"type": simple}
+    raise TypeError(f"no command-line flag for a field of type {hint!r}")
+
+
+def add_flags(parser: argparse.ArgumentParser, sections: Sequence[Section]) -> None:
+    """Add `--section.field` (and `--field` where unambiguous) for every section field."""
+    taken = {s for action in parser._actions for s in action.option_strings}
+    for section in sections:
+        hints = typing.get_type_hints(section.cls)
+        docs = field_docs(section.cls)
+        defaults = section.defaults
+        if defaults is None:
+            defaults = section.cls()
+        group = parser.add_argument_group(f"{section.name} options ({section.cls.__name__})")
+        for name in section.field_names():
+            flags = [f"--{section.name}.{name}"]
+            if f"--{name}" not in taken:
+                flags.insert(0, f"--{name}")
+            taken.update(flags)
+            default = getattr(defaults, name)
+            shown = " ".join(map(str, default)) if isinstance(default, tuple) else default
+            doc = docs.get(name, "").replace("%", "%%")
+            group.add_argument(
+                *flags,
+                dest=f"{section.name}.{name}",
+                default=argparse.SUPPRESS,
+                help=f"{doc} (default: {shown})",
+                **_argparse_kwargs(hints[name]),
+            )
+
+
+def overrides(namespace: argparse.Namespace, section: str) -> dict[str, Any]:
+    """{field: value} of the flags given for `section` (lists become tuples)."""
+    prefix = f"{section}."
+    return {
+        k[len(prefix) :]: tuple(v) if isinstance(v, list) else v
+        for k, v in vars(namespace).items()
+        if k.startswith(prefix)
+    }
+
+
+class UserError(Exception):
+    """Bad input from the user: reported as `prog: error: message`, exit status 2."""
+
+
+def run_cli(main: typing.Callable[[list[str] | None], int], prog: str, argv=None) -> int:
+    """Run a CLI main; user errors (UserError, CheckpointError) print one line on stderr
+    and return 2 instead of a traceback."""
+    import sys
+
+    from mara_mjx.ppo.checkpoint import CheckpointError
+
+    try:
+        return main(argv)
+    except (UserError, CheckpointError) as e:
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        return 2

@@ -1,0 +1,214 @@
+"""Host-side logging of a training run: CSV, TensorBoard, time-to-accuracy, plots.
+
+One CSV row per PPO update (`progress.csv` in the run folder), with units in the column
+names. `time_s` is wall-clock seconds since the command started (compile included; on a
+resumed run, the time of the run up to the checkpoint plus that of the new command); all
+updates of one jitted call share the call's time.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+AXES = ("x", "y", "z")
+BASE_COLUMNS = (
+    "update",
+    "env_steps",
+    "time_s",
+    "steps_per_s",
+    "reward_mean",
+    "episode_return",
+    "episodes",
+    "distance_mm",
+    *(f"pos_err_{a}_mm" for a in AXES),
+    "det_error_mm",
+    *(f"det_err_{a}_mm" for a in AXES),
+    "det_distance_mm",
+)
+ORIENT_COLUMNS = (
+    *(f"ori_err_{a}_deg" for a in AXES),
+    *(f"det_ori_err_{a}_deg" for a in AXES),
+)
+TAIL_COLUMNS = (
+    "collision_rate",
+    "nonfinite_actions",
+    "terminations",
+    "entropy",
+    "policy_loss",
+    "value_loss",
+    "loss",
+    "approx_kl",
+    "clip_frac",
+    "grad_norm",
+    "explained_variance",
+    "learning_rate",
+)
+# Metric name -> CSV columns, for the (3,) per-axis metrics.
+_VECTOR_COLUMNS = {
+    "position_error_mm": "pos_err_{}_mm",
+    "det_position_error_mm": "det_err_{}_mm",
+    "orientation_error_deg": "ori_err_{}_deg",
+    "det_orientation_error_deg": "det_ori_err_{}_deg",
+}
+ACCURACY_THRESHOLDS_MM = (5.0, 1.0)
+
+
+def columns(orientation: bool) -> tuple[str, ...]:
+    return BASE_COLUMNS + (ORIENT_COLUMNS if orientation else ()) + TAIL_COLUMNS
+
+
+def rows_from_metrics(
+    metrics: dict[str, np.ndarray],
+    first_update: int,
+    steps_per_update: int,
+    time_s: float,
+    steps_per_s: float,
+) -> list[dict[str, float]]:
+    """CSV rows of the valid updates of one `Trainer.run` call (host numpy metrics)."""
+    rows = []
+    valid = np.asarray(metrics["valid"])
+    for i in np.flatnonzero(valid):
+        update = first_update + len(rows) + 1
+        row: dict[str, float] = {
+            "update": update,
+            "env_steps": update * steps_per_update,  # Python int: no overflow
+            "time_s": time_s,
+            "steps_per_s": steps_per_s,
+        }
+        for name, value in metrics.items():
+            if name == "valid":
+                continue
+            value = np.asarray(value[i])
+            if name in _VECTOR_COLUMNS:
+                for axis, v in zip(AXES, value, strict=True):
+                    row[_VECTOR_COLUMNS[name].format(axis)] = float(v)
+            else:
+                row[name] = float(value)
+        rows.append(row)
+    return rows
+
+
+class Milestones:
+    """Wall-clock time and env steps when the deterministic mean per-axis error
+    (`det_error_mm`) first drops below each threshold."""
+
+    def __init__(self, records: dict[str, Any] | None = None):
+        self.records: dict[str, Any] = dict(records or {})
+
+    def update(self, rows: Iterable[dict[str, float]]) -> list[str]:
+        """Record new crossings; returns messages for them."""
+        messages = []
+        for row in rows:
+            err = row.get("det_error_mm", math.nan)
+            for mm in ACCURACY_THRESHOLDS_MM:
+                key = f"{mm:g}mm"
+                if key not in self.records and err < mm:
+                    self.records[key] = {
+                        "time_s": row["time_s"],
+                        "env_steps": int(row["env_steps"]),
+                        "update": int(row["update"]),
+                    }
+                    messages.append(
+                        f"mean per-axis error {err:.3f} mm < {mm:g} mm after "
+                        f"{row['time_s']:.1f} s, {int(row['env_steps'])} env steps"
+                    )
+        return messages
+
+
+class RunLogger:
+    """Appends rows to <run>/progress.csv and TensorBoard scalars to <run>/tb.
+
+    `resume_update`: on a resumed run, rows after this update (logged after the
+    checkpoint by the interrupted command) are dropped first, so the CSV has each update
+    once."""
+
+    def __init__(
+        self,
+        run_dir: Path,
+        columns: tuple[str, ...],
+        tensorboard: bool,
+        resume_update: int | None = None,
+        resume_env_steps: int = 0,
+    ):
+        self.path = run_dir / "progress.csv"
+        self.columns = columns
+        if resume_update is not None and self.path.exists():
+            kept = [r for r in read_csv(self.path) if int(float(r["update"])) <= resume_update]
+            self._write(kept, mode="w")
+        elif not self.path.exists() or resume_update is None:
+            self._write([], mode="w")
+        self.writer = None
+        if tensorboard:
+            from tensorboardX import SummaryWriter
+
+            purge = resume_env_steps + 1 if resume_update is not None else None
+            self.writer = SummaryWriter(str(run_dir / "tb"), purge_step=purge)
+
+    def _write(self, rows: list[dict[str, Any]], mode: str) -> None:
+        with open(self.path, mode, newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=self.columns, extrasaction="ignore")
+            if mode == "w":
+                writer.writeheader()
+            writer.writerows({c: r.get(c, math.nan) for c in self.columns} for r in rows)
+
+    def log(self, rows: list[dict[str, float]]) -> None:
+        self._write(rows, mode="a")
+        if self.writer is not None:
+            for row in rows:
+                step = int(row["env_steps"])
+                for name in self.columns[2:]:
+                    value = row.get(name, math.nan)
+                    if math.isfinite(value):
+                        self.writer.add_scalar(name, value, step)
+            self.writer.flush()
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+
+
+def read_csv(path: str | os.PathLike) -> list[dict[str, str]]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def save_plots(csv_path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:
+    """PNG plots against env steps, as the paper's figures: mean reward, policy entropy,
+    and the deterministic mean per-axis error (log scale)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = read_csv(csv_path)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    steps = np.array([float(r["env_steps"]) for r in rows])
+    plots = [
+        ("reward.png", "reward_mean", "mean reward per step", False),
+        ("entropy.png", "entropy", "policy entropy (nats)", False),
+        ("error.png", "det_error_mm", "deterministic mean per-axis error (mm)", True),
+    ]
+    written = []
+    for filename, column, label, log in plots:
+        values = np.array([float(r.get(column) or math.nan) for r in rows])
+        fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
+        ax.plot(steps, values, lw=1.2)
+        ax.set_xlabel("env steps")
+        ax.set_ylabel(label)
+        if log and np.any(values > 0):
+            ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+        fig.tight_layout()
+        path = out_dir / filename
+        fig.savefig(path)
+        plt.close(fig)
+        written.append(path)
+    return written

@@ -1,0 +1,104 @@
+"""Networks, the diagonal Gaussian and the observation normaliser (pure pieces).
+
+The networks are those of OpenAI baselines ppo2 with `value_network='copy'`, as used
+by the paper: a tanh MLP for the Gaussian mean and a separate tanh MLP of the same shape
+for the value, orthogonal initialisation (gain sqrt(2) for hidden layers, 0.01 for the
+policy head, 1 for the value head), zero biases, and a state-independent log standard
+deviation. The Gaussian mean is the action: absolute joint targets (rad) that the env
+clips to the joint limits.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+
+class MLP(nn.Module):
+    """tanh MLP with orthogonal initialisation; the output layer is linear."""
+
+    hidden_sizes: Sequence[int]
+    out_size: int
+    out_gain: float
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for width in self.hidden_sizes:
+            x = nn.Dense(width, kernel_init=nn.initializers.orthogonal(math.sqrt(2.0)))(x)
+            x = jnp.tanh(x)
+        return nn.Dense(self.out_size, kernel_init=nn.initializers.orthogonal(self.out_gain))(x)
+
+
+class ActorCritic(nn.Module):
+    """Gaussian policy and value function with separate MLPs (no shared layers)."""
+
+    action_size: int
+    hidden_sizes: Sequence[int] = (64, 64)
+    init_log_std: float = 0.0
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """obs (..., obs_size) normalised -> mean (..., A), log_std (..., A), value (...)."""
+        mean = MLP(self.hidden_sizes, self.action_size, 0.01, name="actor")(obs)
+        value = MLP(self.hidden_sizes, 1, 1.0, name="critic")(obs)[..., 0]
+        log_std = self.param(
+            "log_std", nn.initializers.constant(self.init_log_std), (self.action_size,)
+        )
+        return mean, jnp.broadcast_to(log_std, mean.shape), value
+
+
+def gaussian_log_prob(mean: jax.Array, log_std: jax.Array, action: jax.Array) -> jax.Array:
+    """log N(action; mean, exp(log_std)^2), summed over the last (action) axis."""
+    z = (action - mean) * jnp.exp(-log_std)
+    return jnp.sum(-0.5 * jnp.square(z) - log_std - 0.5 * math.log(2.0 * math.pi), axis=-1)
+
+
+def gaussian_entropy(log_std: jax.Array) -> jax.Array:
+    """Entropy (nats) of the diagonal Gaussian, summed over the last (action) axis."""
+    return jnp.sum(log_std + 0.5 * math.log(2.0 * math.pi * math.e), axis=-1)
+
+
+@struct.dataclass
+class RunningStats:
+    """Running mean and variance of observations (Chan et al.'s parallel Welford merge).
+
+    `count` is float32: past 2^24 samples it rounds, which only perturbs the weight of a
+    new batch relative to the history (irrelevant at that point)."""
+
+    mean: jax.Array  # (obs_size,)
+    var: jax.Array  # (obs_size,) population variance
+    count: jax.Array  # () samples seen, starting at a tiny epsilon (baselines' RunningMeanStd)
+
+    @classmethod
+    def create(cls, size: int) -> RunningStats:
+        return cls(
+            mean=jnp.zeros(size, jnp.float32),
+            var=jnp.ones(size, jnp.float32),
+            count=jnp.array(1e-4, jnp.float32),
+        )
+
+
+def update_stats(stats: RunningStats, batch: jax.Array) -> RunningStats:
+    """Merge a (B, obs_size) batch into the running statistics."""
+    batch = batch.reshape(-1, stats.mean.shape[-1]).astype(jnp.float32)
+    n = jnp.asarray(batch.shape[0], jnp.float32)
+    batch_mean = jnp.mean(batch, axis=0)
+    batch_var = jnp.var(batch, axis=0)
+    total = stats.count + n
+    delta = batch_mean - stats.mean
+    mean = stats.mean + delta * n / total
+    m2 = stats.var * stats.count + batch_var * n + jnp.square(delta) * stats.count * n / total
+    return RunningStats(mean=mean, var=m2 / total, count=total)
+
+
+def normalize(stats: RunningStats | None, obs: jax.Array, clip: float = 10.0) -> jax.Array:
+    """(obs - mean) / sqrt(var + 1e-8), clipped to [-clip, clip]; identity if stats is None."""
+    if stats is None:
+        return obs
+    z = (obs - stats.mean) / jnp.sqrt(stats.var + 1e-8)
+    return jnp.clip(z, -clip, clip)

@@ -1,0 +1,93 @@
+"""The policy artefact and its one factory, `make_policy`.
+
+A policy is params + config (+ observation statistics when the run normalised them). The
+deterministic policy is the Gaussian mean: absolute joint targets (rad) for the env,
+which clips them to the joint limits.
+
+    policy = make_policy("runs/MARA-.../checkpoints/ckpt_00000100.npz")
+    action = policy(obs)                       # (obs_size,) or (N, obs_size) -> (..., 6)
+    action = jax.jit(policy)(obs)              # or pass `policy` into a jitted function:
+                                               # it is a pytree (params traced, config static)
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import jax
+from flax import struct
+
+from mara_mjx.ppo.config import PPOConfig
+from mara_mjx.ppo.networks import ActorCritic, RunningStats, normalize
+
+
+@struct.dataclass
+class Policy:
+    """Deterministic policy obs -> Gaussian mean. A pytree: pass it through jit/vmap."""
+
+    params: Any
+    obs_stats: RunningStats | None
+    config: PPOConfig = struct.field(pytree_node=False)
+    action_size: int = struct.field(pytree_node=False)
+
+    @property
+    def network(self) -> ActorCritic:
+        return ActorCritic(self.action_size, self.config.hidden_sizes, self.config.init_log_std)
+
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        """obs (..., obs_size) raw -> action (..., action_size) rad."""
+        x = normalize(self.obs_stats, obs, self.config.obs_clip)
+        mean, _, _ = self.network.apply(self.params, x)
+        return mean
+
+    def distribution(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Gaussian (mean, log_std), each (..., action_size), for stochastic use."""
+        x = normalize(self.obs_stats, obs, self.config.obs_clip)
+        mean, log_std, _ = self.network.apply(self.params, x)
+        return mean, log_std
+
+
+def make_policy(
+    checkpoint_or_params: Any,
+    config: PPOConfig | None = None,
+    obs_stats: RunningStats | None = None,
+) -> Policy:
+    """The deterministic policy fn(obs) -> action from any of:
+
+    * a checkpoint path (file, or a run folder: its newest checkpoint); config is read
+      from the checkpoint;
+    * a `RunnerState` (training state) with its `config`;
+    * flax params of `ActorCritic` with their `config` (and `obs_stats` when
+      config.normalize_obs);
+    * a `Policy` (returned as is).
+    """
+    if isinstance(checkpoint_or_params, Policy):
+        return checkpoint_or_params
+    if isinstance(checkpoint_or_params, str | os.PathLike):
+        from mara_mjx.ppo.checkpoint import load_policy
+
+        return load_policy(checkpoint_or_params)
+    if config is None:
+        raise ValueError("make_policy needs the PPOConfig the params were trained with")
+    params = checkpoint_or_params
+    if hasattr(params, "params") and hasattr(params, "obs_stats"):  # RunnerState
+        params, obs_stats = params.params, params.obs_stats
+    try:
+        action_size = int(params["params"]["log_std"].shape[-1])
+    except (KeyError, TypeError, AttributeError) as e:
+        raise ValueError(
+            "make_policy: params are not those of mara_mjx.ppo.ActorCritic "
+            "(no params['params']['log_std'])"
+        ) from e
+    if config.normalize_obs and obs_stats is None:
+        raise ValueError(
+            "make_policy: config.normalize_obs is true but no obs_stats were given; the policy "
+            "would see unnormalised observations"
+        )
+    return Policy(
+        params=params,
+        obs_stats=obs_stats if config.normalize_obs else None,
+        config=config,
+        action_size=action_size,
+    )

@@ -1,0 +1,358 @@
+"""PPO for thousands of environments per device, PureJaxRL style.
+
+    trainer = make_train(env, PPOConfig(num_envs=2048, num_steps=32), updates_per_call=10)
+    state = trainer.init(jax.random.key(0))
+    while done < trainer.num_updates:
+        n = min(trainer.updates_per_call, trainer.num_updates - done)
+        state, metrics = trainer.run(state, n)   # n updates in one jitted lax.scan
+        done += n                                 # host: progress, logs, checkpoints
+
+One update, top to bottom:
+  1. rollout: `num_steps` steps of all envs with actions sampled from the Gaussian policy
+     (a lax.scan over BatchedEnv.step, which auto-resets ended episodes), plus one extra
+     step with the deterministic action (the Gaussian mean) whose metrics measure the
+     current policy's accuracy and whose state is then discarded ("probe");
+  2. values of obs and of final_obs (pre-reset) -> GAE with truncation bootstrap (losses.py);
+  3. `update_epochs` passes over the shuffled batch in `num_minibatches` Adam steps of the
+     clipped PPO loss (losses.py);
+  4. observation statistics merged with the rollout's observations (if normalize_obs); the
+     rollout and the loss of this update both used the statistics from before it.
+
+Env step counts never live in a device integer: the host derives them as Python ints from
+the update count (an int32 that stays below 2^31 / (epochs * minibatches), checked in
+PPOConfig).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from mara_mjx.envs.batched import BatchedEnv, BatchedState
+from mara_mjx.ppo.config import PPOConfig
+from mara_mjx.ppo.losses import gae, ppo_loss
+from mara_mjx.ppo.networks import (
+    ActorCritic,
+    RunningStats,
+    gaussian_entropy,
+    gaussian_log_prob,
+    normalize,
+    update_stats,
+)
+
+
+@struct.dataclass
+class RunnerState:
+    """Everything an exact resume needs (saved whole in checkpoints)."""
+
+    params: Any  # flax params of ActorCritic
+    opt_state: optax.OptState
+    obs_stats: RunningStats
+    env_state: BatchedState
+    key: jax.Array
+    update: jax.Array  # () int32, PPO updates done
+
+
+class Transition(NamedTuple):
+    """One rollout step of all envs; a rollout stacks them to (T, N, ...)."""
+
+    obs: jax.Array  # (N, obs) observation acted on (raw, not normalised)
+    action: jax.Array  # (N, A) rad, sampled joint targets (before the env clips them)
+    log_prob: jax.Array  # (N,)
+    reward: jax.Array  # (N,)
+    terminated: jax.Array  # (N,) bool
+    truncated: jax.Array  # (N,) bool
+    final_obs: jax.Array  # (N, obs) observation the step produced, before any auto-reset
+    episode_return: jax.Array  # (N,) return of the episode that ended here, else 0
+    metrics: dict[str, jax.Array]  # env metrics of the step
+
+
+class Batch(NamedTuple):
+    """Flattened (B, ...) training data of one update."""
+
+    obs: jax.Array
+    action: jax.Array
+    log_prob: jax.Array
+    value: jax.Array
+    advantages: jax.Array
+    returns: jax.Array
+
+
+class Trainer(NamedTuple):
+    """What `make_train` returns: jitted `init` and `run`, and the sizes the host needs."""
+
+    config: PPOConfig
+    env: BatchedEnv
+    network: ActorCritic
+    init: Callable[[jax.Array], RunnerState]
+    run: Callable[[RunnerState, int], tuple[RunnerState, dict[str, jax.Array]]]
+    """run(state, n): n <= updates_per_call updates; metrics have a leading
+    (updates_per_call,) axis whose first n rows are valid (metrics["valid"])."""
+    updates_per_call: int
+    num_updates: int
+    steps_per_update: int
+
+
+def make_lr_schedule(config: PPOConfig) -> Callable[[jax.Array], jax.Array]:
+    """Learning rate as a function of the update index (0-based), constant within an
+    update as in baselines ppo2."""
+    lr, num_updates = config.learning_rate, config.num_updates
+
+    def schedule(update: jax.Array) -> jax.Array:
+        update = jnp.asarray(update, jnp.float32)
+        if config.lr_schedule == "linear":
+            return lr * (1.0 - update / num_updates)
+        if config.lr_schedule == "exp":
+            return jnp.maximum(lr * jnp.exp(-config.lr_decay_rate * update), config.lr_floor)
+        return jnp.full((), lr, jnp.float32)
+
+    return schedule
+
+
+def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
+    """Global-norm clip then Adam (eps 1e-5), the rate following `make_lr_schedule`."""
+    lr_at_update = make_lr_schedule(config)
+    steps_per_update = config.update_epochs * config.num_minibatches
+    return optax.chain(
+        optax.clip_by_global_norm(config.max_grad_norm),
+        optax.adam(lambda count: lr_at_update(count // steps_per_update), eps=config.adam_eps),
+    )
+
+
+def make_train(env: Any, config: PPOConfig, updates_per_call: int = 1) -> Trainer:
+    """PPO on `config.num_envs` copies of `env` (any env BatchedEnv can wrap)."""
+    benv = BatchedEnv(env, config.num_envs)
+    network = ActorCritic(benv.action_size, config.hidden_sizes, config.init_log_std)
+    optimizer = make_optimizer(config)
+    lr_at_update = make_lr_schedule(config)
+    obs_size = benv.observation_size
+
+    def stats_in_use(state: RunnerState) -> RunningStats | None:
+        return state.obs_stats if config.normalize_obs else None
+
+    def policy(params: Any, stats: RunningStats | None, obs: jax.Array):
+        return network.apply(params, normalize(stats, obs, config.obs_clip))
+
+    def init(key: jax.Array) -> RunnerState:
+        key, net_key, env_key = jax.random.split(key, 3)
+        params = network.init(net_key, jnp.zeros((obs_size,), jnp.float32))
+        return RunnerState(
+            params=params,
+            opt_state=optimizer.init(params),
+            obs_stats=RunningStats.create(obs_size),
+            env_state=benv.reset(env_key),
+            key=key,
+            update=jnp.zeros((), jnp.int32),
+        )
+
+    # ------------------------------------------------------------------ rollout
+    def rollout(
+        params: Any, stats: RunningStats | None, env_state: BatchedState, key: jax.Array
+    ) -> tuple[BatchedState, Transition, dict[str, jax.Array]]:
+        """num_steps sampled steps, then the deterministic probe step (state discarded)."""
+
+        def step(carry, t):
+            env_state, key = carry
+            key, noise_key = jax.random.split(key)
+            mean, log_std, _ = policy(params, stats, env_state.obs)
+            sample = mean + jnp.exp(log_std) * jax.random.normal(noise_key, mean.shape)
+            probe = t == config.num_steps
+            action = jnp.where(probe, mean, sample)
+            next_state = benv.step(env_state, action)
+            transition = Transition(
+                obs=env_state.obs,
+                action=action,
+                log_prob=gaussian_log_prob(mean, log_std, action),
+                reward=next_state.reward,
+                terminated=next_state.terminated,
+                truncated=next_state.truncated,
+                final_obs=next_state.final_obs,
+                episode_return=next_state.episode_return,
+                metrics=next_state.metrics,
+            )
+            env_state = jax.tree.map(
+                lambda old, new: jnp.where(probe, old, new), env_state, next_state
+            )
+            return (env_state, key), transition
+
+        (env_state, _), traj = jax.lax.scan(
+            step, (env_state, key), jnp.arange(config.num_steps + 1)
+        )
+        probe_metrics = jax.tree.map(lambda x: x[-1], traj.metrics)
+        traj = jax.tree.map(lambda x: x[:-1], traj)
+        return env_state, traj, probe_metrics
+
+    # ---------------------------------------------------------------------- SGD
+    def loss_fn(params: Any, stats: RunningStats | None, mb: Batch):
+        mean, log_std, value = policy(params, stats, mb.obs)
+        return ppo_loss(
+            gaussian_log_prob(mean, log_std, mb.action),
+            value,
+            gaussian_entropy(log_std),
+            mb.log_prob,
+            mb.value,
+            mb.advantages,
+            mb.returns,
+            clip_eps=config.clip_eps,
+            vf_coef=config.vf_coef,
+            ent_coef=config.ent_coef,
+            clip_value=config.clip_value,
+            normalize_advantages=config.normalize_advantages,
+        )
+
+    def sgd(params: Any, opt_state: Any, stats: RunningStats | None, batch: Batch, key):
+        """update_epochs passes of num_minibatches Adam steps over the shuffled batch."""
+
+        def minibatch_step(carry, mb: Batch):
+            params, opt_state = carry
+            grads, info = jax.grad(loss_fn, has_aux=True)(params, stats, mb)
+            updates, opt_state = optimizer.update(grads, opt_state, params)
+            params = optax.apply_updates(params, updates)
+            return (params, opt_state), (info, optax.global_norm(grads))
+
+        def epoch(carry, key):
+            order = jax.random.permutation(key, config.batch_size)
+            minibatches = jax.tree.map(
+                lambda x: x[order].reshape(
+                    config.num_minibatches, config.minibatch_size, *x.shape[1:]
+                ),
+                batch,
+            )
+            return jax.lax.scan(minibatch_step, carry, minibatches)
+
+        keys = jax.random.split(key, config.update_epochs)
+        (params, opt_state), (info, grad_norm) = jax.lax.scan(epoch, (params, opt_state), keys)
+        return params, opt_state, info, grad_norm
+
+    # ------------------------------------------------------------------- update
+    def update(state: RunnerState) -> tuple[RunnerState, dict[str, jax.Array]]:
+        key, rollout_key, sgd_key = jax.random.split(state.key, 3)
+        stats = stats_in_use(state)
+        env_state, traj, probe = rollout(state.params, stats, state.env_state, rollout_key)
+
+        _, _, value = policy(state.params, stats, traj.obs)
+        _, _, final_value = policy(state.params, stats, traj.final_obs)
+        next_value = final_value * (1.0 - traj.terminated.astype(jnp.float32))
+        done = traj.terminated | traj.truncated
+        advantages, returns = gae(
+            traj.reward, value, next_value, done, config.gamma, config.gae_lambda
+        )
+        flat = lambda x: x.reshape(config.batch_size, *x.shape[2:])  # noqa: E731
+        batch = Batch(
+            obs=flat(traj.obs),
+            action=flat(traj.action),
+            log_prob=flat(traj.log_prob),
+            value=flat(value),
+            advantages=flat(advantages),
+            returns=flat(returns),
+        )
+        params, opt_state, info, grad_norm = sgd(
+            state.params, state.opt_state, stats, batch, sgd_key
+        )
+        obs_stats = state.obs_stats
+        if config.normalize_obs:
+            obs_stats = update_stats(obs_stats, traj.obs)
+
+        metrics = {
+            **rollout_metrics(traj, done),
+            **probe_metric_summary(probe),
+            "policy_loss": info.policy.mean(),
+            "value_loss": info.value.mean(),
+            "loss": info.total.mean(),
+            "entropy": info.entropy.mean(),
+            "approx_kl": info.approx_kl.mean(),
+            "clip_frac": info.clip_frac.mean(),
+            "grad_norm": grad_norm.mean(),
+            "learning_rate": lr_at_update(state.update),
+            "explained_variance": 1.0 - jnp.var(returns - value) / (jnp.var(returns) + 1e-8),
+            "valid": jnp.array(True),
+        }
+        new_state = RunnerState(
+            params=params,
+            opt_state=opt_state,
+            obs_stats=obs_stats,
+            env_state=env_state,
+            key=key,
+            update=state.update + 1,
+        )
+        return new_state, metrics
+
+    def run(state: RunnerState, num_updates: jax.Array) -> tuple[RunnerState, dict]:
+        """min(num_updates, updates_per_call) updates in one lax.scan; the remaining
+        iterations skip (lax.cond), so any n runs through one compiled program."""
+        shapes = jax.eval_shape(update, state)[1]
+
+        def skip(state: RunnerState):
+            nan = {k: jnp.full(v.shape, jnp.nan, v.dtype) for k, v in shapes.items()}
+            return state, {**nan, "valid": jnp.array(False)}
+
+        def body(state: RunnerState, i: jax.Array):
+            return jax.lax.cond(i < num_updates, update, skip, state)
+
+        return jax.lax.scan(body, state, jnp.arange(updates_per_call))
+
+    donate = () if jax.default_backend() == "cpu" else (0,)
+    return Trainer(
+        config=config,
+        env=benv,
+        network=network,
+        init=jax.jit(init),
+        run=jax.jit(run, donate_argnums=donate),
+        updates_per_call=updates_per_call,
+        num_updates=config.num_updates,
+        steps_per_update=config.batch_size,
+    )
+
+
+def rollout_metrics(traj: Transition, done: jax.Array) -> dict[str, jax.Array]:
+    """Means over the rollout's (T, N) steps. Env metrics are used where the env reports
+    them: distance / position_error (m -> mm), orientation_error (rad -> deg), collided,
+    nonfinite_actions."""
+    m = traj.metrics
+    episodes = jnp.sum(done)
+    out = {
+        "reward_mean": jnp.mean(traj.reward),
+        "episodes": episodes.astype(jnp.float32),
+        # Mean return of the episodes that ended in this rollout; NaN if none did.
+        "episode_return": jnp.where(
+            episodes > 0, jnp.sum(traj.episode_return) / jnp.maximum(episodes, 1), jnp.nan
+        ),
+        "terminations": jnp.sum(traj.terminated).astype(jnp.float32),
+    }
+    if "distance" in m:
+        out["distance_mm"] = 1000.0 * jnp.mean(m["distance"])
+    if "position_error" in m:
+        out["position_error_mm"] = 1000.0 * jnp.mean(m["position_error"], axis=(0, 1))
+    if "orientation_error" in m:
+        out["orientation_error_deg"] = jnp.degrees(jnp.mean(m["orientation_error"], axis=(0, 1)))
+    if "collided" in m:
+        out["collision_rate"] = jnp.mean(m["collided"])
+    if "nonfinite_actions" in m:
+        out["nonfinite_actions"] = jnp.sum(m["nonfinite_actions"])
+    return out
+
+
+def probe_metric_summary(m: dict[str, jax.Array]) -> dict[str, jax.Array]:
+    """Accuracy of the deterministic policy: one step with the Gaussian mean from every
+    env's state at the end of the rollout. `det_error_mm` is the mean over envs and axes of
+    |e| after that step, the "mean per-axis error" of the time-to-accuracy records."""
+    out = {}
+    if "position_error" in m:
+        per_axis = 1000.0 * jnp.mean(m["position_error"], axis=0)
+        out["det_position_error_mm"] = per_axis
+        out["det_error_mm"] = jnp.mean(per_axis)
+    if "distance" in m:
+        out["det_distance_mm"] = 1000.0 * jnp.mean(m["distance"])
+    if "orientation_error" in m:
+        out["det_orientation_error_deg"] = jnp.degrees(jnp.mean(m["orientation_error"], axis=0))
+    return out
+
+
+def num_parameters(params: Any) -> int:
+    return sum(math.prod(x.shape) for x in jax.tree.leaves(params))
