@@ -134,12 +134,11 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dic
         raise CheckpointError(
             f"checkpoint {str(path)!r} is corrupt or not a mara_mjx checkpoint: {e}"
         ) from e
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise CheckpointError(
-            f"checkpoint {str(path)!r} has format {meta.get('format') if isinstance(meta, dict) else None!r}, "
-            f"expected {FORMAT!r}"
-        )
-    for key in ("env_name", "env_config", "ppo", "observation_size", "action_size", "progress"):
+    found = meta.get("format") if isinstance(meta, dict) else None
+    if found != FORMAT:
+        raise CheckpointError(f"checkpoint {str(path)!r} has format {found!r}, expected {FORMAT!r}")
+    required = ("env_name", "env_config", "ppo", "run", "eval", "progress")
+    for key in (*required, "observation_size", "action_size"):
         if key not in meta:
             raise CheckpointError(f"checkpoint {str(path)!r} metadata lacks {key!r}")
     return arrays, meta

@@ -235,33 +235,6 @@ class EvalConfig(_ConfigMixin):
         _check_range("tolerance_mm", self.tolerance_mm, 0.0, math.inf)
 
 
-PRESETS: dict[str, PPOConfig] = {
-    # Tuned for thousands of environments on one GPU (a starting point; override freely).
-    "default": PPOConfig(
-        num_envs=2048,
-        num_steps=32,
-        total_timesteps=50_000_000,
-        num_minibatches=32,
-        update_epochs=4,
-        normalize_obs=True,
-    ),
-    # The paper's appendix: baselines ppo2, one environment (spec section 7).
-    "paper": PPOConfig(),
-    # The later ROS2Learn configuration of the same group.
-    "ros2learn": PPOConfig(
-        num_steps=1024,
-        num_minibatches=4,
-        hidden_sizes=(16, 16),
-        learning_rate=3e-3,
-        lr_schedule="exp",
-        lr_decay_rate=0.001918,
-        lr_floor=1e-4,
-        clip_eps=0.25,
-        vf_coef=1.0,
-    ),
-}
-
-
 @functools.cache
 def field_docs(cls: type) -> dict[str, str]:
     """The attribute docstrings of a dataclass (the string literal after each field),
@@ -299,3 +272,30 @@ def _check_range(name: str, value: Any, low: float, high: float, low_open: bool 
     if not ok:
         bracket = "(" if low_open else "["
         raise ValueError(f"{name}={value!r} must be a finite number in {bracket}{low}, {high}]")
+
+
+PRESETS: dict[str, PPOConfig] = {
+    # Tuned for thousands of environments on one GPU (a starting point; override freely).
+    "default": PPOConfig(
+        num_envs=2048,
+        num_steps=32,
+        total_timesteps=50_000_000,
+        num_minibatches=32,
+        update_epochs=4,
+        normalize_obs=True,
+    ),
+    # The paper's appendix: baselines ppo2, one environment (spec section 7).
+    "paper": PPOConfig(),
+    # The later ROS2Learn configuration of the same group.
+    "ros2learn": PPOConfig(
+        num_steps=1024,
+        num_minibatches=4,
+        hidden_sizes=(16, 16),
+        learning_rate=3e-3,
+        lr_schedule="exp",
+        lr_decay_rate=0.001918,
+        lr_floor=1e-4,
+        clip_eps=0.25,
+        vf_coef=1.0,
+    ),
+}

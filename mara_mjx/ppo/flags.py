@@ -84,7 +84,7 @@ def add_flags(parser: argparse.ArgumentParser, sections: Sequence[Section]) -> N
                 dest=f"{section.name}.{name}",
                 default=argparse.SUPPRESS,
                 help=f"{doc} (default: {shown})",
-                **_argparse_kwargs(hints[name]),
+                **{"metavar": name.upper(), **_argparse_kwargs(hints[name])},
             )
 
 
