@@ -214,7 +214,7 @@ def make_train(env: Any, config: PPOConfig, updates_per_call: int = 1) -> Traine
             grads, info = jax.grad(loss_fn, has_aux=True)(params, stats, mb)
             updates, opt_state = optimizer.update(grads, opt_state, params)
             params = optax.apply_updates(params, updates)
-            return (params, opt_state), (info, optax.global_norm(grads))
+            return (params, opt_state), (info, optax.tree.norm(grads))
 
         def epoch(carry, key):
             order = jax.random.permutation(key, config.batch_size)

@@ -1,0 +1,486 @@
+"""PPO pieces against references, and PPO learning a tiny pure-jnp task (CPU, seconds).
+
+The toy env and its trainer are built and compiled once per session.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import struct
+
+from mara_mjx.envs.base import EnvConfig
+from mara_mjx.ppo import (
+    PRESETS,
+    EvalConfig,
+    PPOConfig,
+    RunConfig,
+    RunningStats,
+    gae,
+    gaussian_entropy,
+    gaussian_log_prob,
+    make_lr_schedule,
+    make_policy,
+    make_train,
+    ppo_loss,
+    update_stats,
+)
+from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo.flags import Section, add_flags, overrides
+from mara_mjx.rewards import RewardParams
+
+# --------------------------------------------------------------------------- toy env
+
+
+@struct.dataclass
+class ToyParams:
+    target: jax.Array  # (3,) m
+
+
+@struct.dataclass
+class ToyState:
+    pos: jax.Array  # (3,) m
+    obs: jax.Array  # (6,) pos, pos - target
+    reward: jax.Array
+    terminated: jax.Array
+    truncated: jax.Array
+    step: jax.Array
+    key: jax.Array
+    params: ToyParams
+    metrics: dict[str, jax.Array]
+
+
+class PointReach:
+    """A point that teleports to the commanded position (like the MARA train driver).
+
+    Observation (6,): position (m), position - target (m). Action (3,): absolute target
+    position (m). Reward: -5 * RMS distance to the target. Reset: uniform in [-1, 1]^3.
+    Truncates after `horizon` steps; terminates if a coordinate leaves [-4, 4] m (so that
+    GAE sees both kinds of episode end).
+    """
+
+    observation_size = 6
+    action_size = 3
+
+    def __init__(self, horizon: int = 8):
+        self.max_episode_steps = horizon
+        self.default_params = ToyParams(target=jnp.array([0.6, -0.4, 0.3]))
+
+    def make_params(self, reset_noise: float = 0.0) -> ToyParams:
+        return self.default_params
+
+    def _observe(self, pos, params):
+        return jnp.concatenate([pos, pos - params.target])
+
+    def reset(self, key: jax.Array, params: ToyParams | None = None) -> ToyState:
+        params = self.default_params if params is None else params
+        key, pos_key = jax.random.split(key)
+        pos = jax.random.uniform(pos_key, (3,), minval=-1.0, maxval=1.0)
+        zero = jnp.zeros(())
+        err = jnp.abs(pos - params.target)
+        return ToyState(
+            pos=pos,
+            obs=self._observe(pos, params),
+            reward=zero,
+            terminated=jnp.array(False),
+            truncated=jnp.array(False),
+            step=jnp.zeros((), jnp.int32),
+            key=key,
+            params=params,
+            metrics={
+                "distance": jnp.sqrt(jnp.mean(err**2)),
+                "position_error": err,
+                "collided": zero,
+                "collisions": zero,
+                "nonfinite_actions": zero,
+                "episode_return": zero,
+                "episode_length": zero,
+            },
+        )
+
+    def step(self, state: ToyState, action: jax.Array) -> ToyState:
+        pos = action
+        err = jnp.abs(pos - state.params.target)
+        distance = jnp.sqrt(jnp.mean(err**2))
+        reward = -5.0 * distance
+        step = state.step + 1
+        m = state.metrics
+        return state.replace(
+            pos=pos,
+            obs=self._observe(pos, state.params),
+            reward=reward,
+            terminated=jnp.any(jnp.abs(pos) > 4.0),
+            truncated=step >= self.max_episode_steps,
+            step=step,
+            metrics={
+                **m,
+                "distance": distance,
+                "position_error": err,
+                "episode_return": m["episode_return"] + reward,
+                "episode_length": step.astype(jnp.float32),
+            },
+        )
+
+
+TOY_CONFIG = PPOConfig(
+    num_envs=16,
+    num_steps=16,
+    total_timesteps=16 * 16 * 40,
+    num_minibatches=4,
+    update_epochs=4,
+    learning_rate=1e-2,
+    lr_schedule="constant",
+    hidden_sizes=(32, 32),
+    normalize_obs=True,
+)
+
+
+@pytest.fixture(scope="session")
+def toy():
+    """The toy trainer (4 updates per call) and its initial state."""
+    trainer = make_train(PointReach(), TOY_CONFIG, updates_per_call=4)
+    state = trainer.init(jax.random.key(0))
+    return trainer, state
+
+
+@pytest.fixture(scope="session")
+def toy_history(toy):
+    """All 40 toy updates: final state and metrics (numpy, one row per update)."""
+    trainer, state = toy
+    rows = []
+    for _ in range(trainer.num_updates // trainer.updates_per_call):
+        state, metrics = trainer.run(state, trainer.updates_per_call)
+        rows.append(jax.device_get(metrics))
+    history = {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
+    return state, history
+
+
+# ----------------------------------------------------------------------------- GAE
+
+
+def reference_gae(reward, value, final_value, terminated, truncated, gamma, lam):
+    """GAE as CleanRL writes it, plus the truncation bootstrap: at truncated steps the
+    reward gets gamma * V(final_obs); otherwise a step bootstraps from V(obs[t+1]) (and
+    from V(final_obs) past the last step); an episode end cuts the recursion."""
+    T, N = reward.shape
+    adv = np.zeros((T, N))
+    for n in range(N):
+        running = 0.0
+        for t in reversed(range(T)):
+            done = terminated[t, n] or truncated[t, n]
+            r = reward[t, n]
+            if truncated[t, n] and not terminated[t, n]:
+                r = r + gamma * final_value[t, n]
+            if done:
+                next_v = 0.0
+            elif t == T - 1:
+                next_v = final_value[t, n]
+            else:
+                next_v = value[t + 1, n]
+            delta = r + gamma * next_v - value[t, n]
+            running = delta + gamma * lam * (0.0 if done else 1.0) * running
+            adv[t, n] = running
+    return adv
+
+
+def test_gae_matches_python_loop():
+    rng = np.random.default_rng(0)
+    T, N, gamma, lam = 23, 5, 0.97, 0.9
+    reward = rng.normal(size=(T, N))
+    value = rng.normal(size=(T, N))
+    final_value = rng.normal(size=(T, N))
+    terminated = rng.random((T, N)) < 0.08
+    truncated = rng.random((T, N)) < 0.15
+    truncated[-1, 0] = True
+    terminated[-1, 1] = truncated[-1, 1] = True
+    assert terminated.any() and truncated.any() and (terminated & truncated).any()
+    done = terminated | truncated
+    # Without an episode end, final_obs[t] is obs[t + 1] (BatchedEnv's contract).
+    for t in range(T - 1):
+        final_value[t] = np.where(done[t], final_value[t], value[t + 1])
+
+    expected = reference_gae(reward, value, final_value, terminated, truncated, gamma, lam)
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    next_value = f32(final_value) * (1.0 - f32(terminated))
+    adv, returns = jax.jit(gae, static_argnums=(4, 5))(
+        f32(reward), f32(value), next_value, jnp.asarray(done), gamma, lam
+    )
+    np.testing.assert_allclose(adv, expected, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(returns, expected + value, rtol=1e-5, atol=1e-5)
+
+
+# ----------------------------------------------------------------------------- loss
+
+
+def test_ppo_loss_hand_computed():
+    # ratio = exp(log_prob - old) = (1.5, 0.5); advantages (3, 1) normalise to (1, -1)
+    # (population std 1); clip 0.2:
+    #   policy: max(-1 * 1.5, -1 * 1.2) = -1.2 ; max(0.5, 0.8) = 0.8 -> mean -0.2
+    #   value (clipped, eps 0.2): v = (1, 0), v_old = (0.5, 0.5), R = (2, 0)
+    #     sample 1: (1 - 2)^2 = 1 ; v_clip = 0.5 + 0.2 = 0.7 -> 1.69 ; max 1.69
+    #     sample 2: 0 ; v_clip = 0.5 - 0.2 = 0.3 -> 0.09 ; max 0.09
+    #     value = 0.5 * (1.69 + 0.09) / 2 = 0.445
+    #   entropy mean 1.5; total = -0.2 + 0.5 * 0.445 - 0.01 * 1.5 = 0.0075
+    #   approx_kl = 0.5 * (log(1.5)^2 + log(0.5)^2) / 2 ; clip_frac = 1
+    total, info = ppo_loss(
+        log_prob=jnp.log(jnp.array([1.5, 0.5])),
+        value=jnp.array([1.0, 0.0]),
+        entropy=jnp.array([1.0, 2.0]),
+        old_log_prob=jnp.zeros(2),
+        old_value=jnp.array([0.5, 0.5]),
+        advantages=jnp.array([3.0, 1.0]),
+        returns=jnp.array([2.0, 0.0]),
+        clip_eps=0.2,
+        vf_coef=0.5,
+        ent_coef=0.01,
+    )
+    np.testing.assert_allclose(info.policy, -0.2, atol=1e-6)
+    np.testing.assert_allclose(info.value, 0.445, atol=1e-6)
+    np.testing.assert_allclose(info.entropy, 1.5, atol=1e-6)
+    np.testing.assert_allclose(total, 0.0075, atol=1e-6)
+    kl = 0.5 * (math.log(1.5) ** 2 + math.log(0.5) ** 2) / 2
+    np.testing.assert_allclose(info.approx_kl, kl, rtol=1e-5)
+    np.testing.assert_allclose(info.clip_frac, 1.0)
+
+    # Unclipped value loss and raw advantages: policy = mean(-3 * 1.2, -1 * 0.5) = -2.05
+    # (sample 2 has A > 0 and ratio 0.5 < 0.8: the unclipped -0.5 is larger than -0.8),
+    # value = 0.5 * (1 + 0) / 2 = 0.25.
+    _, info = ppo_loss(
+        jnp.log(jnp.array([1.5, 0.5])),
+        jnp.array([1.0, 0.0]),
+        jnp.array([1.0, 2.0]),
+        jnp.zeros(2),
+        jnp.array([0.5, 0.5]),
+        jnp.array([3.0, 1.0]),
+        jnp.array([2.0, 0.0]),
+        clip_eps=0.2,
+        vf_coef=0.5,
+        ent_coef=0.0,
+        clip_value=False,
+        normalize_advantages=False,
+    )
+    np.testing.assert_allclose(info.policy, -2.05, atol=1e-6)
+    np.testing.assert_allclose(info.value, 0.25, atol=1e-6)
+
+
+def test_gaussian_log_prob_and_entropy():
+    mean, log_std = jnp.array([0.5, -1.0]), jnp.array([0.0, math.log(2.0)])
+    action = jnp.array([1.5, 0.0])
+    # N(1.5; 0.5, 1) * N(0; -1, 2): z = (1, 0.5)
+    expected = -0.5 * (1.0 + 0.25) - math.log(2.0) - math.log(2 * math.pi)
+    np.testing.assert_allclose(gaussian_log_prob(mean, log_std, action), expected, rtol=1e-6)
+    expected_entropy = 2 * 0.5 * math.log(2 * math.pi * math.e) + math.log(2.0)
+    np.testing.assert_allclose(gaussian_entropy(log_std), expected_entropy, rtol=1e-6)
+
+
+def test_running_stats_match_numpy():
+    rng = np.random.default_rng(1)
+    batches = [rng.normal(3.0, 5.0, size=(n, 4)).astype(np.float32) for n in (7, 100, 33)]
+    stats = RunningStats.create(4)
+    for batch in batches:
+        stats = update_stats(stats, jnp.asarray(batch))
+    everything = np.concatenate(batches)
+    np.testing.assert_allclose(stats.mean, everything.mean(0), rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(stats.var, everything.var(0), rtol=1e-3)
+    np.testing.assert_allclose(stats.count, len(everything), rtol=1e-5)
+
+
+# --------------------------------------------------------------------------- config
+
+
+def test_lr_schedules():
+    linear = make_lr_schedule(PPOConfig(num_steps=8, total_timesteps=80, num_minibatches=2))
+    np.testing.assert_allclose([linear(0), linear(5), linear(9)], [3e-4, 1.5e-4, 3e-5], rtol=1e-5)
+    ros = PRESETS["ros2learn"]
+    exp = make_lr_schedule(ros)
+    np.testing.assert_allclose(exp(100), 3e-3 * math.exp(-0.1918), rtol=1e-5)
+    np.testing.assert_allclose(exp(10_000), 1e-4, rtol=1e-6)  # floored
+
+
+def test_presets_hold_the_papers_hyperparameters():
+    paper = PRESETS["paper"]
+    assert (paper.num_envs, paper.num_steps, paper.num_minibatches) == (1, 2048, 32)
+    assert (paper.update_epochs, paper.gamma, paper.gae_lambda, paper.clip_eps) == (
+        10,
+        0.99,
+        0.95,
+        0.2,
+    )
+    assert (paper.vf_coef, paper.ent_coef, paper.learning_rate, paper.seed) == (0.5, 0, 3e-4, 0)
+    assert paper.hidden_sizes == (64, 64) and paper.total_timesteps == 10**8
+    assert paper.lr_schedule == "linear" and not paper.normalize_obs
+    assert (paper.adam_eps, paper.max_grad_norm, paper.clip_value) == (1e-5, 0.5, True)
+    ros = PRESETS["ros2learn"]
+    assert (ros.hidden_sizes, ros.num_steps, ros.num_minibatches) == ((16, 16), 1024, 4)
+    assert (ros.clip_eps, ros.vf_coef, ros.lr_schedule) == (0.25, 1.0, "exp")
+    default = PRESETS["default"]
+    assert default.num_envs >= 1024 and default.normalize_obs
+    # Overridable in one call; the preset itself is never mutated.
+    tuned = default.replace(num_envs=4096, learning_rate=1e-3)
+    assert tuned.num_envs == 4096 and default.num_envs == 2048
+
+
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        ({"num_envs": 3, "num_steps": 5, "num_minibatches": 4}, "does not divide the batch"),
+        ({"total_timesteps": 10}, "less than one update"),
+        ({"gamma": 1.5}, "gamma"),
+        ({"lr_schedule": "cosine"}, "choose one of"),
+        ({"hidden_sizes": ()}, "hidden_sizes"),
+        ({"num_envs": 0}, "num_envs"),
+        ({"num_envs": 2**20, "total_timesteps": 2**60}, "overflows"),
+        ({"bogus": 1}, "unknown PPOConfig field"),
+    ],
+)
+def test_invalid_config_raises_clear_error(overrides, message):
+    with pytest.raises(ValueError, match=message):
+        PRESETS["default"].replace(**overrides)
+
+
+def test_config_round_trips_through_json_dict():
+    for config in PRESETS.values():
+        assert PPOConfig.from_dict(config.to_dict()) == config
+    assert RunConfig.from_dict(RunConfig().to_dict()) == RunConfig()
+
+
+def test_flags_cover_every_field_and_resolve_ambiguity():
+    parser = argparse.ArgumentParser(allow_abbrev=False)
+    sections = (
+        Section("ppo", PPOConfig),
+        Section("eval", EvalConfig),
+        Section("env", EnvConfig, exclude=("reward",)),
+        Section("env", RewardParams),
+    )
+    add_flags(parser, sections)
+    strings = {s for a in parser._actions for s in a.option_strings}
+    for section in sections:
+        for name in section.field_names():
+            assert f"--{section.name}.{name}" in strings
+    # gamma and seed: the short flag belongs to the first section that has the field.
+    args = parser.parse_args(
+        "--gamma 0.9 --env.gamma 2 --seed 3 --eval.seed 4 --hidden_sizes 8 8 "
+        "--normalize_obs false --driver real --target_pos 0 0.1 0.7".split()
+    )
+    assert overrides(args, "ppo") == {
+        "gamma": 0.9,
+        "seed": 3,
+        "hidden_sizes": (8, 8),
+        "normalize_obs": False,
+    }
+    assert overrides(args, "eval") == {"seed": 4}
+    assert overrides(args, "env") == {"gamma": 2.0, "driver": "real", "target_pos": (0, 0.1, 0.7)}
+    helps = {a.dest: a.help for a in parser._actions}
+    assert "GAE lambda" in helps["ppo.gae_lambda"]
+    assert "rad/s" in helps["env.velocity"]
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--driver", "fast"])
+
+
+# --------------------------------------------------------------------- learning
+
+
+def test_ppo_learns_the_toy_task(toy_history):
+    _, history = toy_history
+    assert history["valid"].all() and len(history["valid"]) == TOY_CONFIG.num_updates
+    first, last = history["reward_mean"][:3].mean(), history["reward_mean"][-3:].mean()
+    # An untrained policy (mean ~0, std 1) scores about -5 * 1.1; a trained one near 0.
+    assert first < -3.0
+    assert last > first + 2.5, (first, last)
+    assert history["det_error_mm"][-3:].mean() < 0.35 * history["det_error_mm"][:3].mean()
+    assert history["entropy"][-1] < history["entropy"][0]
+    finished = history["episode_return"][np.isfinite(history["episode_return"])]
+    assert len(finished) > 10 and finished[-3:].mean() > finished[:3].mean()
+    assert np.all(np.isfinite(history["loss"])) and np.all(history["learning_rate"] > 0)
+
+
+def test_run_is_chunk_invariant_and_compiles_once(toy):
+    """n updates in one call == the same updates over several calls (exact resume), and
+    the masked scan never retraces."""
+    trainer, state = toy
+    one_call, m1 = trainer.run(state, 3)
+    two_calls, m2a = trainer.run(state, 1)
+    two_calls, m2b = trainer.run(two_calls, 2)
+    chex.assert_trees_all_equal(jax.tree.map(_plain, one_call), jax.tree.map(_plain, two_calls))
+    np.testing.assert_array_equal(m1["valid"], [True, True, True, False])
+    np.testing.assert_array_equal(m1["loss"][:3], np.r_[m2a["loss"][:1], m2b["loss"][:2]])
+    assert int(one_call.update) == 3
+    assert trainer.run._cache_size() == 1
+
+
+def test_checkpoint_round_trip_resumes_exactly(toy, tmp_path):
+    trainer, state = toy
+    state, _ = trainer.run(state, 2)
+    meta = {
+        "env_name": "PointReach",
+        "env_config": {},
+        "observation_size": 6,
+        "action_size": 3,
+        "ppo": TOY_CONFIG.to_dict(),
+        "run": {},
+        "eval": {},
+        "progress": {"update": 2},
+    }
+    path = ckpt.save_checkpoint(tmp_path / "checkpoints" / ckpt.checkpoint_name(2), state, meta)
+    assert not [p for p in path.parent.iterdir() if p.name.startswith(".")]  # no temp left
+    assert ckpt.find_checkpoint(tmp_path) == path
+    arrays, loaded_meta = ckpt.load_checkpoint(path)
+    assert loaded_meta["progress"] == {"update": 2}
+    template = jax.eval_shape(trainer.init, jax.random.key(0))
+    restored = ckpt.arrays_to_state(arrays, template)
+    chex.assert_trees_all_equal(jax.tree.map(_plain, state), jax.tree.map(_plain, restored))
+    after, _ = trainer.run(state, 1)
+    after_restored, _ = trainer.run(restored, 1)
+    chex.assert_trees_all_equal(jax.tree.map(_plain, after), jax.tree.map(_plain, after_restored))
+    assert trainer.run._cache_size() == 1  # restored arrays have the same types
+
+    # The policy artefact: params + config + normaliser, through the one factory.
+    from_state = make_policy(state, TOY_CONFIG)
+    from_file = make_policy(path)
+    obs = jax.random.normal(jax.random.key(1), (5, 6)) * 3
+    np.testing.assert_array_equal(from_state(obs), from_file(obs))
+    assert from_file(obs[0]).shape == (3,)
+    assert from_file.obs_stats is not None
+    np.testing.assert_array_equal(jax.jit(lambda p, o: p(o))(from_file, obs), from_file(obs))
+
+
+def test_make_policy_rejects_missing_normaliser(toy):
+    _, state = toy
+    with pytest.raises(ValueError, match="normalize_obs"):
+        make_policy(state.params, TOY_CONFIG)
+    plain = make_policy(state.params, TOY_CONFIG.replace(normalize_obs=False))
+    assert plain(jnp.zeros(6)).shape == (3,)
+
+
+def test_deterministic_policy_solves_the_toy_task(toy_history):
+    state, _ = toy_history
+    policy = make_policy(state, TOY_CONFIG)
+    env = PointReach()
+    starts = jax.vmap(env.reset)(jax.random.split(jax.random.key(7), 32))
+    after = jax.vmap(env.step)(starts, policy(starts.obs))
+    before = float(jnp.mean(starts.metrics["distance"]))
+    assert float(jnp.mean(after.metrics["distance"])) < 0.3 * before
+
+
+def test_checkpoint_errors_are_clear(tmp_path):
+    with pytest.raises(ckpt.CheckpointError, match="does not exist"):
+        ckpt.load_checkpoint(tmp_path / "nothing.npz")
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"definitely not a zip file")
+    with pytest.raises(ckpt.CheckpointError, match="corrupt"):
+        ckpt.load_checkpoint(bad)
+    with pytest.raises(ckpt.CheckpointError, match="no checkpoints"):
+        ckpt.find_checkpoint(tmp_path)
+
+
+def _plain(x):
+    """Key arrays as their data, for tree comparisons."""
+    if jnp.issubdtype(x.dtype, jax.dtypes.prng_key):
+        return jax.random.key_data(x)
+    return x
