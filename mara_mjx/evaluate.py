@@ -27,8 +27,15 @@ import mara_mjx
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo.config import EvalConfig
-from mara_mjx.ppo.evaluation import evaluate, format_table
-from mara_mjx.ppo.flags import Section, UserError, add_flags, overrides, run_cli
+from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table
+from mara_mjx.ppo.flags import (
+    Section,
+    UserError,
+    add_flags,
+    configure_jax,
+    overrides,
+    run_cli,
+)
 from mara_mjx.rewards import RewardParams
 
 PROG = "mara_mjx.evaluate"
@@ -62,6 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    configure_jax()
     path = ckpt.find_checkpoint(args.checkpoint)
     arrays, meta = ckpt.load_checkpoint(path)
     policy = ckpt.policy_from_checkpoint(arrays, meta)
@@ -78,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         env = mara_mjx.make(name, **env_options)
     except ValueError as e:
-        raise UserError(f"invalid env option for {name}: {e}") from e
+        raise UserError(f"cannot build env {name}: {e}") from e
     if env.observation_size != meta["observation_size"]:
         raise UserError(
             f"env {name} observes {env.observation_size} values, the policy expects "
@@ -115,6 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         "training_versions": meta.get("versions"),
         "episodes": result.episodes(),
         "summary": result.summary(),
+        "paper": PAPER_RESULTS.get(name),
     }
     ckpt.write_json(out, report)
     print(f"wrote {out}")

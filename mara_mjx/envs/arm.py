@@ -13,9 +13,10 @@ Drivers (spec section 5):
     qvel' = (q' - q) / control_dt, then `mjx.kinematics` and `mjx.collision`.
     No dynamics.
   * `real`: each joint's servo reference moves toward the command at
-    `velocity` rad/s; `mjx.step` integrates the arm's dynamics under position
-    servos (torque-limited to the effort limits, gravity fed forward) for
-    control_dt / timestep substeps. Contacts act physically.
+    `velocity` rad/s; `mjx.step` integrates the arm's dynamics under servos
+    kp (ref - q) + kv (ref_vel - qdot) (torque-limited to the effort limits,
+    gravity fed forward) for control_dt / timestep substeps. Contacts act
+    physically.
 """
 
 from __future__ import annotations
@@ -90,8 +91,11 @@ class Arm:
         self.mj_model = load_model() if mj_model is None else mj_model
         m = self.mj_model
         self.joint_ids = np.array([m.joint(n).id for n in JOINTS])
-        if m.nq != len(JOINTS) or m.nv != len(JOINTS) or m.nu != len(JOINTS):
-            raise ValueError(f"expected a 6-joint, 6-actuator arm, got nq={m.nq} nu={m.nu}")
+        if m.nq != len(JOINTS) or m.nv != len(JOINTS) or m.nu != 2 * len(JOINTS):
+            raise ValueError(
+                f"expected a 6-joint arm with a position and a velocity actuator per joint, "
+                f"got nq={m.nq} nu={m.nu}"
+            )
         self.tcp_site = m.site("tcp").id
         self.flange_body = m.body("motor6_link").id
         self.lower = m.jnt_range[self.joint_ids, 0].copy()
@@ -150,12 +154,14 @@ class Arm:
 
         def substep(carry, _):
             d, ref, hit = carry
-            ref = ref + jnp.clip(command - ref, -max_move, max_move)
-            d = mjx.step(self.mjx_model, d.replace(ctrl=ref))
+            move = jnp.clip(command - ref, -max_move, max_move)
+            ref = ref + move
+            ctrl = jnp.concatenate([ref, move / self.timestep])  # [ref, ref_vel]
+            d = mjx.step(self.mjx_model, d.replace(ctrl=ctrl))
             hit = hit | self._penetrating(d)
             return (d, ref, hit), None
 
-        d = self._data0.replace(qpos=q, qvel=qvel, ctrl=ref)
+        d = self._data0.replace(qpos=q, qvel=qvel)
         with jax.named_scope("dynamics"):
             (d, ref, hit), _ = jax.lax.scan(
                 substep, (d, ref, jnp.array(False)), None, length=n_substeps

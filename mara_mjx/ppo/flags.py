@@ -79,12 +79,15 @@ def add_flags(parser: argparse.ArgumentParser, sections: Sequence[Section]) -> N
             default = getattr(defaults, name)
             shown = " ".join(map(str, default)) if isinstance(default, tuple) else default
             doc = docs.get(name, "").replace("%", "%%")
+            kwargs = _argparse_kwargs(hints[name])
+            if "choices" not in kwargs:
+                kwargs.setdefault("metavar", name.upper())
             group.add_argument(
                 *flags,
                 dest=f"{section.name}.{name}",
                 default=argparse.SUPPRESS,
                 help=f"{doc} (default: {shown})",
-                **{"metavar": name.upper(), **_argparse_kwargs(hints[name])},
+                **kwargs,
             )
 
 
@@ -100,6 +103,18 @@ def overrides(namespace: argparse.Namespace, section: str) -> dict[str, Any]:
 
 class UserError(Exception):
     """Bad input from the user: reported as `prog: error: message`, exit status 2."""
+
+
+def configure_jax() -> None:
+    """float32 matmuls at full precision: on GPUs JAX's default may use TF32, which
+    silently degrades the MJX kinematics and training. JAX_DEFAULT_MATMUL_PRECISION, if
+    set, wins."""
+    import os
+
+    import jax
+
+    if "JAX_DEFAULT_MATMUL_PRECISION" not in os.environ:
+        jax.config.update("jax_default_matmul_precision", "highest")
 
 
 def run_cli(main: typing.Callable[[list[str] | None], int], prog: str, argv=None) -> int:

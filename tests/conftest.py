@@ -1,0 +1,80 @@
+"""Session fixtures: each env and its jitted reset/step are built and compiled once.
+
+Every jitted function is wrapped in a retrace guard (`max_traces`, chex's
+`assert_max_traces` counted per wrapped object: chex keys its counter on the source
+code, which all env instances share): a test that makes it retrace (a weak type, a
+new shape, a params sweep that should not recompile) fails instead of silently
+slowing everything down.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
+import functools  # noqa: E402
+
+import jax  # noqa: E402
+import pytest  # noqa: E402
+
+import mara_mjx  # noqa: E402
+
+TASK_NAMES = ("MARA", "MARAOrient", "MARACollision", "MARACollisionOrient")
+
+
+def max_traces(fn, n: int = 1):
+    """Wrap `fn` (before jit) so that tracing it more than `n` times raises."""
+    traces = 0
+
+    @functools.wraps(fn)
+    def wrapped(*args, **kwargs):
+        nonlocal traces
+        traces += 1
+        if traces > n:
+            raise AssertionError(f"{getattr(fn, '__qualname__', fn)} traced {traces} > {n} times")
+        return fn(*args, **kwargs)
+
+    return wrapped
+
+
+class Jitted:
+    """An env with its reset, step and vmapped step jitted under a retrace guard."""
+
+    def __init__(self, env):
+        self.env = env
+        self.reset = jax.jit(max_traces(env.reset, n=1))
+        self.step = jax.jit(max_traces(env.step, n=1))
+        self._vstep = None
+
+    @property
+    def vstep(self):
+        if self._vstep is None:
+            self._vstep = jax.jit(max_traces(jax.vmap(self.env.step), n=1))
+        return self._vstep
+
+
+_CACHE: dict[tuple, Jitted] = {}
+
+
+def jitted(name: str, **overrides) -> Jitted:
+    """The session's one Jitted for (name, overrides)."""
+    key = (name, tuple(sorted(overrides.items())))
+    if key not in _CACHE:
+        _CACHE[key] = Jitted(mara_mjx.make(name, **overrides))
+    return _CACHE[key]
+
+
+@pytest.fixture(scope="session", params=TASK_NAMES)
+def task(request) -> Jitted:
+    return jitted(request.param)
+
+
+@pytest.fixture(scope="session")
+def mara() -> Jitted:
+    return jitted("MARA")
+
+
+@pytest.fixture(scope="session")
+def orient() -> Jitted:
+    return jitted("MARACollisionOrient")

@@ -1,0 +1,314 @@
+"""The train and evaluate CLIs as a user runs them (subprocesses, tiny settings), and
+their clear errors on bad input (before anything is compiled).
+
+One tiny training run (4 envs x 8 steps, 2 updates, 16-step episodes) is shared by the
+session. Subprocesses share a JAX persistent compilation cache in a temporary folder, so
+the resumed run and the evaluation reuse the training run's compiled programs.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import jax.monitoring
+import numpy as np
+import pytest
+
+from mara_mjx import evaluate as evaluate_cli
+from mara_mjx import train as train_cli
+from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo.flags import run_cli
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = [
+    "--env", "MARA",
+    "--num_envs", "4",
+    "--num_steps", "8",
+    "--total_timesteps", "64",
+    "--num_minibatches", "2",
+    "--update_epochs", "2",
+    "--max_episode_steps", "16",
+    "--checkpoint_every", "1",
+    "--updates_per_call", "1",
+]  # fmt: skip
+CKPT1, CKPT2 = (Path(ckpt.CHECKPOINT_DIR) / ckpt.checkpoint_name(u) for u in (1, 2))
+
+
+@pytest.fixture(scope="session")
+def cli_env(tmp_path_factory) -> dict[str, str]:
+    cache = tmp_path_factory.mktemp("jax_cache")
+    return {
+        **os.environ,
+        "JAX_PLATFORMS": "cpu",
+        "JAX_COMPILATION_CACHE_DIR": str(cache),
+        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+        "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0",
+    }
+
+
+def run_module(env: dict[str, str], module: str, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", module, *args],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+
+
+@pytest.fixture(scope="session")
+def trained(cli_env, tmp_path_factory):
+    """(run folder, completed process) of the tiny training run."""
+    out = tmp_path_factory.mktemp("train") / "run"
+    proc = run_module(cli_env, "mara_mjx.train", *TINY, "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    return out, proc
+
+
+@pytest.fixture(scope="session")
+def real_driver_eval(trained, cli_env, tmp_path_factory):
+    """The evaluation on the real-speed driver (a long compile on CPU), started in the
+    background as soon as the run exists so that it overlaps the other tests."""
+    out, _ = trained
+    report = tmp_path_factory.mktemp("real") / "eval-real.json"
+    args = [str(out), "--driver", "real", "--velocity", "0.3", "--json", str(report)]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "mara_mjx.evaluate", *args],
+        cwd=REPO,
+        env=cli_env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    yield proc, report
+    if proc.poll() is None:
+        proc.kill()
+        proc.communicate()
+
+
+def read_rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+# ------------------------------------------------------------------------ training
+
+
+def test_train_writes_logs_checkpoints_plots_and_eval(trained, real_driver_eval):
+    out, proc = trained
+    assert "Traceback" not in proc.stderr
+    assert "step/s" in proc.stderr  # the tqdm progress bar
+
+    config = json.loads((out / "config.json").read_text())
+    assert config["env_name"] == "MARA" and config["ppo"]["num_envs"] == 4
+    assert config["env_config"]["max_episode_steps"] == 16
+    assert config["ppo"]["normalize_obs"] is True  # the 'default' preset
+    assert {"python", "jax", "mujoco", "flax", "optax"} <= set(config["versions"])
+    assert "git_commit" in config
+    assert '"env_name": "MARA"' in proc.stdout  # resolved config printed at start
+
+    rows = read_rows(out / "progress.csv")
+    assert [int(r["update"]) for r in rows] == [1, 2]
+    assert [int(r["env_steps"]) for r in rows] == [32, 64]
+    for column in (
+        "time_s", "steps_per_s", "reward_mean", "episode_return", "distance_mm",
+        "pos_err_x_mm", "pos_err_y_mm", "pos_err_z_mm", "det_error_mm", "collision_rate",
+        "entropy", "policy_loss", "value_loss", "learning_rate", "approx_kl", "clip_frac",
+        "nonfinite_actions",
+    ):  # fmt: skip
+        assert column in rows[0], column
+    assert "ori_err_x_deg" not in rows[0]  # MARA has no orientation task
+    for r in rows:
+        for column in ("entropy", "value_loss", "learning_rate", "distance_mm", "time_s"):
+            assert np.isfinite(float(r[column])), column
+    # 16-step episodes end at update 2 (env steps 9-16 of each env).
+    assert float(rows[1]["episodes"]) == 4 and np.isfinite(float(rows[1]["episode_return"]))
+    assert float(rows[1]["time_s"]) >= float(rows[0]["time_s"]) > 0
+
+    for c, update in ((CKPT1, 1), (CKPT2, 2)):
+        _, meta = ckpt.load_checkpoint(out / c)
+        assert meta["progress"]["update"] == update
+        assert meta["progress"]["env_steps"] == 32 * update
+        assert meta["ppo"] == config["ppo"] and meta["env_config"] == config["env_config"]
+    assert list((out / "tb").glob("events.out.tfevents.*"))
+    for name in ("reward.png", "entropy.png"):
+        assert (out / "plots" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    report = json.loads((out / "eval.json").read_text())
+    assert len(report["episodes"]) == 10
+    assert "| MARA (this policy) |" in proc.stdout and "| MARA (paper) |" in proc.stdout
+    summary = json.loads((out / "summary.json").read_text())
+    assert "time_to_accuracy" in summary and summary["final_update"]["update"] == 2
+
+
+def test_resume_reproduces_the_uninterrupted_run(trained, cli_env, tmp_path):
+    """Resume a copy of the run from its first checkpoint (as if the command had died
+    after logging update 2 but before checkpointing it): the final checkpoint is
+    bit-identical and the CSV holds each update once."""
+    out, _ = trained
+    copy = tmp_path / "resumed"
+    shutil.copytree(out, copy)
+    (copy / CKPT2).unlink()
+    for name in ("eval.json", "summary.json"):
+        (copy / name).unlink()
+    proc = run_module(cli_env, "mara_mjx.train", "--resume", str(copy), "--progress", "false")
+    assert proc.returncode == 0, proc.stderr[-4000:]
+
+    original, _ = ckpt.load_checkpoint(out / CKPT2)
+    resumed, meta = ckpt.load_checkpoint(copy / CKPT2)
+    assert meta["progress"]["update"] == 2
+    assert original.keys() == resumed.keys()
+    for name in original:
+        np.testing.assert_array_equal(original[name], resumed[name], err_msg=name)
+
+    rows, again = read_rows(out / "progress.csv"), read_rows(copy / "progress.csv")
+    assert [r["update"] for r in again] == ["1", "2"]
+    timing = {"time_s", "steps_per_s"}
+    assert {k: v for k, v in rows[1].items() if k not in timing} == {
+        k: v for k, v in again[1].items() if k not in timing
+    }
+    assert (copy / "eval.json").exists() and (copy / "summary.json").exists()
+
+
+def test_evaluate_cli_reproduces_the_training_evaluation(trained, cli_env, tmp_path):
+    out, _ = trained
+    report_path = tmp_path / "eval.json"
+    proc = run_module(cli_env, "mara_mjx.evaluate", str(out / CKPT2), "--json", str(report_path))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    report = json.loads(report_path.read_text())
+    during_training = json.loads((out / "eval.json").read_text())
+    assert report["episodes"] == during_training["episodes"]  # same policy, same episodes
+    for line in proc.stdout.splitlines():
+        if line.startswith("| MARA (this policy)"):
+            mean, std = report["summary"]["position_error_mm"].values()
+            assert (
+                line
+                == "| MARA (this policy) | "
+                + " | ".join(f"{m:.2f} +- {s:.2f}" for m, s in zip(mean, std, strict=True))
+                + " |"
+            )
+            break
+    else:
+        pytest.fail(f"no table row in {proc.stdout}")
+
+
+# ---------------------------------------------------------------------- bad input
+
+COMPILED: list[str] = []
+jax.monitoring.register_event_duration_secs_listener(
+    lambda event, _duration, **kw: (
+        COMPILED.append(kw.get("fun_name", ""))
+        if event.endswith("backend_compile_duration")
+        else None
+    )
+)
+
+
+def _bad_train_inputs(tmp: Path, run: Path) -> list[tuple[list[str], str]]:
+    not_a_folder = tmp / "file.txt"
+    not_a_folder.write_text("x")
+    garbage = tmp / "garbage.npz"
+    garbage.write_bytes(b"not a checkpoint")
+    empty = tmp / "empty_run"
+    empty.mkdir()
+    arrays, meta = ckpt.load_checkpoint(run / CKPT1)
+    arrays.pop("params/params/actor/Dense_0/kernel")
+    stripped = ckpt.save_checkpoint(tmp / "stripped" / CKPT1, arrays, {**meta})
+    tiny = list(TINY)
+    return [
+        (["--num_envs", "4"], "--env is required"),
+        ([*tiny, "--num_minibatches", "3"], "does not divide the batch"),
+        ([*tiny, "--velocity", "3"], "velocity"),
+        ([*tiny, "--out", str(not_a_folder / "run")], "cannot write to the output folder"),
+        ([*tiny, "--out", str(run)], "already holds a run"),
+        (["--resume", str(tmp / "missing")], "does not exist"),
+        (["--resume", str(garbage)], "corrupt"),
+        (["--resume", str(empty)], "has no checkpoints"),
+        (["--resume", str(run), "--learning_rate", "1e-3"], "cannot change ppo.learning_rate"),
+        (["--resume", str(stripped), "--out", str(tmp / "o")], "has no array"),
+    ]
+
+
+def test_bad_train_input_fails_fast_with_a_clear_message(trained, tmp_path, capsys):
+    out, _ = trained
+    for argv, message in _bad_train_inputs(tmp_path, out):
+        COMPILED.clear()
+        code = run_cli(train_cli.main, train_cli.PROG, argv)
+        err = capsys.readouterr().err
+        assert code == 2, argv
+        assert message in err and err.startswith("mara_mjx.train: error:"), (argv, err)
+        assert "Traceback" not in err
+        ours = [n for n in COMPILED if n in ("jit(run)", "jit(init)", "jit(evaluate)")]
+        assert not ours, (argv, ours)
+
+
+def test_bad_evaluate_input_fails_fast_with_a_clear_message(trained, tmp_path, capsys):
+    out, _ = trained
+    garbage = tmp_path / "garbage.npz"
+    garbage.write_bytes(b"PK\x03\x04 truncated zip")
+    cases = [
+        ([str(tmp_path / "missing.npz")], "does not exist"),
+        ([str(garbage)], "corrupt"),
+        ([str(out), "--episodes", "0"], "episodes"),
+        ([str(out), "--driver", "real", "--velocity", "9"], "velocity"),
+    ]
+    for argv, message in cases:
+        COMPILED.clear()
+        code = run_cli(evaluate_cli.main, evaluate_cli.PROG, argv)
+        err = capsys.readouterr().err
+        assert code == 2 and message in err, (argv, err)
+        assert err.startswith("mara_mjx.evaluate: error:") and "Traceback" not in err
+        assert "jit(evaluate)" not in COMPILED
+
+
+def test_unknown_env_as_a_user_sees_it(cli_env):
+    proc = run_module(cli_env, "mara_mjx.train", "--env", "MARX")
+    assert proc.returncode == 2
+    assert "invalid choice: 'MARX'" in proc.stderr and "MARACollisionOrient" in proc.stderr
+    assert "Traceback" not in proc.stderr and "MARA:" not in proc.stdout  # nothing ran
+
+
+def test_corrupt_checkpoint_as_a_user_sees_it(cli_env, tmp_path):
+    garbage = tmp_path / "ckpt.npz"
+    garbage.write_bytes(b"\x00" * 100)
+    proc = run_module(cli_env, "mara_mjx.evaluate", str(garbage))
+    assert proc.returncode == 2
+    assert "corrupt" in proc.stderr and str(garbage) in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_prune_keeps_the_newest_checkpoints(tmp_path):
+    folder = tmp_path / ckpt.CHECKPOINT_DIR
+    folder.mkdir()
+    for update in (5, 10, 15, 20):
+        (folder / ckpt.checkpoint_name(update)).write_bytes(b"")
+    ckpt.prune_checkpoints(tmp_path, keep=2)
+    assert [p.name for p in ckpt.list_checkpoints(tmp_path)] == [
+        ckpt.checkpoint_name(15),
+        ckpt.checkpoint_name(20),
+    ]
+
+
+def test_evaluate_cli_on_the_real_driver(real_driver_eval):
+    """A policy trained with the train driver, evaluated on the real-speed driver."""
+    proc, report_path = real_driver_eval
+    stdout, stderr = proc.communicate(timeout=600)
+    assert proc.returncode == 0, stderr[-4000:]
+    assert "driver 'real', velocity 0.3 rad/s" in stdout
+    assert "| task | x | y | z |" in stdout
+    assert "| MARA (paper) | 5.74 +- 6.73 | 6.78 +- 5.27 | 6.38 +- 4.72 |" in stdout
+    report = json.loads(report_path.read_text())
+    assert report["env_config"]["driver"] == "real"
+    assert report["env_config"]["velocity"] == 0.3
+    assert report["eval"]["episodes"] == len(report["episodes"]) == 10
+    errors = np.array([e["position_error_mm"] for e in report["episodes"]])
+    np.testing.assert_allclose(report["summary"]["position_error_mm"]["mean"], errors.mean(0))
+    assert all(1 <= e["steps"] <= 16 for e in report["episodes"])
+    assert {"jax", "mujoco"} <= set(report["versions"])
