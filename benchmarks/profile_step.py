@@ -7,6 +7,8 @@ Times, at each size, under vmap + lax.scan with random joint positions:
   batched      BatchedEnv.step (env.step + auto-reset + episode statistics), the
                default "select" reset strategy
   batched_cond the same with reset_strategy="cond"
+  batched_v0   the first version, for before/after in one run: "cond" strategy and a
+               reset that also ran collision detection
 
     python benchmarks/profile_step.py --task MARACollisionOrient --sizes 16384 65536
 
@@ -28,6 +30,25 @@ from mujoco import mjx
 import mara_mjx
 from mara_mjx.benchmark import device_info, versions
 from mara_mjx.envs.batched import BatchedEnv
+
+
+class FullPoseReset:
+    """The env with the first version's reset (kinematics + collision)."""
+
+    def __init__(self, env):
+        self._env = env
+
+    def __getattr__(self, name):
+        return getattr(self._env, name)
+
+    def reset(self, key, params=None):
+        arm = self._env.arm
+        pose = arm.pose
+        arm.pose = lambda q, collide=True: pose(q, True)
+        try:
+            return self._env.reset(key, params)
+        finally:
+            arm.pose = pose
 
 
 def timed(fn, *args, repeats=5):
@@ -56,6 +77,7 @@ def main() -> None:
     for n in args.sizes:
         benv = BatchedEnv(env, n)
         benv_cond = BatchedEnv(env, n, reset_strategy="cond")
+        benv_v0 = BatchedEnv(FullPoseReset(env), n, reset_strategy="cond")
 
         def scan(stage):
             def body(carry, _):
@@ -83,6 +105,7 @@ def main() -> None:
             "env.step": (scan(lambda s, a: (jax.vmap(env.step)(s, a), None)), states),
             "batched": (scan(lambda s, a: (benv.step(s, a), None)), bstate),
             "batched_cond": (scan(lambda s, a: (benv_cond.step(s, a), None)), bstate),
+            "batched_v0": (scan(lambda s, a: (benv_v0.step(s, a), None)), bstate),
         }
         for name, (fn, x0) in stages.items():
             first, med, _ = timed(fn, x0, jax.random.key(1))
@@ -95,7 +118,8 @@ def main() -> None:
             }
             records.append(rec)
             print(
-                f"n={n:>6d} {name:11s} {rec['steps_per_s'] / 1e6:8.2f} M/s  compile {rec['compile_s']:.1f} s",
+                f"n={n:>6d} {name:12s} {rec['steps_per_s'] / 1e6:8.2f} M/s"
+                f"  compile {rec['compile_s']:.1f} s",
                 flush=True,
             )
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -131,7 +131,8 @@ def env_study(args: argparse.Namespace) -> list[dict[str, Any]]:
                     break
                 records.append(rec)
                 print(
-                    f"{task:20s} {driver:5s} n={n:>7d}  {rec['env_steps_per_s'] / 1e6:9.3f} M steps/s"
+                    f"{task:20s} {driver:5s} n={n:>7d}"
+                    f"  {rec['env_steps_per_s'] / 1e6:9.3f} M steps/s"
                     f"  compile {rec['compile_s']:6.1f} s",
                     flush=True,
                 )

@@ -83,8 +83,11 @@ def test_collision_resets_pose_and_penalises_only_collision_tasks():
         np.testing.assert_allclose(np.asarray(s.q), 0.0)  # then back at the reset pose
         np.testing.assert_allclose(np.asarray(s.qvel), 0.0)
         d = float(s.metrics["distance"])
-        free = float(mara_mjx.rewards.reward(d, 0.0, False, j.env.default_params.reward,
-                                             orientation=False, collision=False))
+        free = float(
+            mara_mjx.rewards.reward(
+                d, 0.0, False, j.env.default_params.reward, orientation=False, collision=False
+            )
+        )
         assert (float(s.reward) < free - 2.0) == penalised
         # the episode goes on
         assert not bool(s.terminated) and not bool(s.truncated)
@@ -175,7 +178,9 @@ def test_register_own_variant():
     from mara_mjx.envs.mara import TASKS, MaraEnv, default_config
 
     def factory(**kw):
-        return MaraEnv(TASKS["MARA"], default_config(TASKS["MARA"]).replace(max_episode_steps=7, **kw))
+        return MaraEnv(
+            TASKS["MARA"], default_config(TASKS["MARA"]).replace(max_episode_steps=7, **kw)
+        )
 
     mara_mjx.register("MARAShort", factory, overwrite=True)
     env = mara_mjx.make("MARAShort")

@@ -30,7 +30,9 @@ def test_joint_table_and_limits(arm):
     np.testing.assert_allclose(arm.lower, [-3.1416, -2.35, -2.61, -3.14, -2.56, -3.14])
     np.testing.assert_allclose(arm.upper, [3.1416, 2.35, 2.61, 3.14, 2.56, 3.14])
     axes = m.jnt_axis[arm.joint_ids]
-    np.testing.assert_allclose(axes, [[0, 0, 1], [1, 0, 0], [-1, 0, 0], [0, 0, 1], [-1, 0, 0], [0, 0, 1]])
+    np.testing.assert_allclose(
+        axes, [[0, 0, 1], [1, 0, 0], [-1, 0, 0], [0, 0, 1], [-1, 0, 0], [0, 0, 1]]
+    )
     np.testing.assert_allclose(m.jnt_actfrcrange[:, 1], [104, 104, 69, 69, 34, 34])
     np.testing.assert_allclose(m.body("motor3_link").mass, 3.95)
 

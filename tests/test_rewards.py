@@ -48,7 +48,9 @@ def test_collision_penalty_reference_values(d, expected):
 
 def test_orientation_factor_reference_value():
     # O(pi/2), beta 1.5, gamma 1: (2 - 0.5^1.5) / 2 = (2 - 0.35355) / 2 = 0.8232
-    assert float(rewards.orientation_factor(jnp.pi / 2, 1.5, 1.0)) == pytest.approx(0.8232, abs=1e-4)
+    assert float(rewards.orientation_factor(jnp.pi / 2, 1.5, 1.0)) == pytest.approx(
+        0.8232, abs=1e-4
+    )
     assert float(rewards.orientation_factor(0.0, 1.5, 1.0)) == pytest.approx(1.0)
     # upside down: (1 + 1 - 1) / 2 = 0.5
     assert float(rewards.orientation_factor(jnp.pi, 1.1, 1.0)) == pytest.approx(0.5)
