@@ -309,6 +309,8 @@ def test_evaluate_cli_on_the_real_driver(real_driver_eval):
     assert report["env_config"]["velocity"] == 0.3
     assert report["eval"]["episodes"] == len(report["episodes"]) == 10
     errors = np.array([e["position_error_mm"] for e in report["episodes"]])
-    np.testing.assert_allclose(report["summary"]["position_error_mm"]["mean"], errors.mean(0))
+    np.testing.assert_allclose(
+        report["summary"]["position_error_mm"]["mean"], errors.mean(0), rtol=1e-6
+    )
     assert all(1 <= e["steps"] <= 16 for e in report["episodes"])
     assert {"jax", "mujoco"} <= set(report["versions"])

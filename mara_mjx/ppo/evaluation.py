@@ -67,7 +67,10 @@ class EvalResult:
         ]
 
     def summary(self) -> dict[str, Any]:
-        stat = lambda x: {"mean": np.mean(x, 0).tolist(), "std": np.std(x, 0).tolist()}  # noqa: E731
+        def stat(x: np.ndarray) -> dict[str, Any]:
+            x = np.asarray(x, np.float64)
+            return {"mean": np.mean(x, 0).tolist(), "std": np.std(x, 0).tolist()}
+
         return {
             "position_error_mm": stat(self.position_error_mm),
             "orientation_error_deg": stat(self.orientation_error_deg),
@@ -75,7 +78,7 @@ class EvalResult:
             "mean_axis_error_mm": float(np.mean(self.position_error_mm)),
             "reached_tolerance": int(np.sum(self.reached)),
             "episodes": len(self.steps),
-            "steps": stat(self.steps.astype(float)),
+            "steps": stat(self.steps),
             "collisions": int(np.sum(self.collisions)),
         }
 
@@ -145,11 +148,11 @@ def format_table(task: str, result: EvalResult, orientation: bool, config: EvalC
     def cells(pairs) -> list[str]:
         return [f"{m:.2f} +- {s:.2f}" for m, s in pairs]
 
-    pos = zip(result.position_error_mm.mean(0), result.position_error_mm.std(0), strict=True)
-    ours = [f"{task} (this policy)", *cells(pos)]
+    summary = result.summary()
+    pos, ori = summary["position_error_mm"], summary["orientation_error_deg"]
+    ours = [f"{task} (this policy)", *cells(zip(pos["mean"], pos["std"], strict=True))]
     if orientation:
-        ori = result.orientation_error_deg
-        ours += cells(zip(ori.mean(0), ori.std(0), strict=True))
+        ours += cells(zip(ori["mean"], ori["std"], strict=True))
     rows = [ours]
     paper = PAPER_RESULTS.get(task)
     if paper is not None:
