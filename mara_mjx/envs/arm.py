@@ -21,6 +21,8 @@ Drivers (spec section 5):
 
 from __future__ import annotations
 
+import contextlib
+import io
 import itertools
 from pathlib import Path
 from typing import NamedTuple
@@ -29,7 +31,11 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
+
+# mujoco.mjx prints "Failed to import warp" on import when the optional Warp backend is not
+# installed; mara_mjx uses the JAX backend only, so the message is only noise here.
+with contextlib.redirect_stdout(io.StringIO()):
+    from mujoco import mjx
 
 from mara_mjx.envs.geometry import quat_canonical
 
