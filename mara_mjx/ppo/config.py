@@ -111,6 +111,10 @@ class PPOConfig(_ConfigMixin):
     """With normalize_obs: clip normalised observations to [-obs_clip, obs_clip]."""
     normalize_advantages: bool = True
     """Normalise advantages per minibatch (baselines ppo2)."""
+    reward_scale: float = 1.0
+    """Rewards are multiplied by this before GAE, so values learn scaled returns (logged
+    rewards stay unscaled). The MARA rewards reach 10 per step, so with gamma 0.99 returns
+    reach 1000, far outside what the clipped value loss (clip_eps per update) can follow."""
     seed: int = 0
     """PRNG seed of initialisation, environments, action noise and shuffling."""
 
@@ -145,6 +149,7 @@ class PPOConfig(_ConfigMixin):
         _check_range("gae_lambda", self.gae_lambda, 0.0, 1.0)
         for name in ("clip_eps", "max_grad_norm", "adam_eps", "learning_rate", "obs_clip"):
             _check_range(name, getattr(self, name), 0.0, math.inf, low_open=True)
+        _check_range("reward_scale", self.reward_scale, 0.0, math.inf, low_open=True)
         for name in ("vf_coef", "ent_coef", "lr_decay_rate", "lr_floor"):
             _check_range(name, getattr(self, name), 0.0, math.inf)
         if self.lr_schedule not in LR_SCHEDULES:

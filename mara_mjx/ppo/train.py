@@ -241,7 +241,12 @@ def make_train(env: Any, config: PPOConfig, updates_per_call: int = 1) -> Traine
         next_value = final_value * (1.0 - traj.terminated.astype(jnp.float32))
         done = traj.terminated | traj.truncated
         advantages, returns = gae(
-            traj.reward, value, next_value, done, config.gamma, config.gae_lambda
+            traj.reward * config.reward_scale,
+            value,
+            next_value,
+            done,
+            config.gamma,
+            config.gae_lambda,
         )
         flat = lambda x: x.reshape(config.batch_size, *x.shape[2:])  # noqa: E731
         batch = Batch(
