@@ -42,7 +42,14 @@ def first_below(rows: list[dict[str, float]], mm: float) -> float | None:
 
 
 def train(
-    task: str, envs: int, steps: int, total: int, out: Path, timeout: float, extra: list[str]
+    task: str,
+    envs: int,
+    steps: int,
+    scale: float,
+    total: int,
+    out: Path,
+    timeout: float,
+    extra: list[str],
 ) -> dict:
     minibatches = max(1, envs * steps // 2048)
     cmd = [
@@ -57,6 +64,8 @@ def train(
         str(steps),
         "--num_minibatches",
         str(minibatches),
+        "--reward_scale",
+        str(scale),
         "--total_timesteps",
         str(total),
         "--out",
@@ -79,6 +88,7 @@ def train(
         "num_envs": envs,
         "num_steps": steps,
         "num_minibatches": minibatches,
+        "reward_scale": scale,
         "total_timesteps": total,
         "status": status,
         "wall_s": time.monotonic() - t0,
@@ -94,7 +104,7 @@ def train(
     if summary.is_file():
         rec["eval"] = json.loads(summary.read_text()).get("eval")
     print(
-        f"{task} {envs}x{steps}: 5 mm at {rec['time_to_5mm_s']} s, 1 mm at "
+        f"{task} {envs}x{steps}@{scale}: 5 mm at {rec['time_to_5mm_s']} s, 1 mm at "
         f"{rec['time_to_1mm_s']} s, {rec['steps_per_s'] or 0:.3g} steps/s, {status}",
         flush=True,
     )
@@ -116,12 +126,14 @@ def main() -> None:
     extra = [a for a in args.extra if a != "--"]
     sweep = []
     for shape in args.shapes:
-        envs, steps = (int(x) for x in shape.lower().split("x"))
+        dims, _, scale = shape.lower().partition("@")
+        envs, steps = (int(x) for x in dims.split("x"))
         sweep.append(
             train(
                 args.task,
                 envs,
                 steps,
+                float(scale or 1.0),
                 args.total,
                 args.runs / f"{args.task}-{shape}",
                 args.timeout,
@@ -135,6 +147,7 @@ def main() -> None:
             t,
             best["num_envs"],
             best["num_steps"],
+            best["reward_scale"],
             args.final_total,
             args.runs / f"final-{t}",
             args.timeout * 2,
@@ -146,7 +159,7 @@ def main() -> None:
     result = {
         "command": " ".join(sys.argv),
         "sweep": sweep,
-        "best": f"{best['num_envs']}x{best['num_steps']}",
+        "best": f"{best['num_envs']}x{best['num_steps']}@{best['reward_scale']}",
         "final": finals,
     }
     (args.out / "ppo_sweep.json").write_text(json.dumps(result, indent=1))
@@ -156,14 +169,14 @@ def main() -> None:
         "",
         f"Command: `{result['command']}`",
         "",
-        "| task | envs x steps | to 5 mm | to 1 mm | env steps/s | final error (mm) |",
-        "|---|---|---:|---:|---:|---:|",
+        "| task | envs x steps | reward scale | to 5 mm | to 1 mm | env steps/s | final (mm) |",
+        "|---|---|---:|---:|---:|---:|---:|",
     ]
     for r in sweep + finals:
         lines.append(
-            f"| {r['task']} | {r['num_envs']} x {r['num_steps']} | "
+            f"| {r['task']} | {r['num_envs']} x {r['num_steps']} | {r['reward_scale']} | "
             f"{fmt(r['time_to_5mm_s'])} | {fmt(r['time_to_1mm_s'])} | "
-            f"{(r['steps_per_s'] or 0) / 1e6:.2f} M | {r['final_det_error_mm']:.2f} |"
+            f"{(r['steps_per_s'] or 0) / 1e6:.2f} M | {r['final_det_error_mm'] or math.nan:.2f} |"
         )
     (args.out / "ppo_sweep.md").write_text("\n".join(lines) + "\n")
     import matplotlib
