@@ -106,15 +106,26 @@ class UserError(Exception):
 
 
 def configure_jax() -> None:
-    """float32 matmuls at full precision: on GPUs JAX's default may use TF32, which
-    silently degrades the MJX kinematics and training. JAX_DEFAULT_MATMUL_PRECISION, if
-    set, wins."""
+    """Full-precision float32 matmuls and deterministic GPU reductions, before the backend
+    starts.
+
+    * On GPUs JAX's default matmul precision may be TF32, which silently degrades the MJX
+      kinematics and training. JAX_DEFAULT_MATMUL_PRECISION, if set, wins.
+    * XLA's GPU scatter and reduction kernels may sum in a different order on every run,
+      and PPO amplifies such last-bit differences into different policies: the same seed
+      gave 116 mm and 4.9 mm final errors on the H200 (benchmarks/NOTES.md). So
+      `--xla_gpu_deterministic_ops=true` is added to XLA_FLAGS unless XLA_FLAGS already
+      sets it (set it to false there to trade reproducibility for speed).
+    """
     import os
 
     import jax
 
     if "JAX_DEFAULT_MATMUL_PRECISION" not in os.environ:
         jax.config.update("jax_default_matmul_precision", "highest")
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_gpu_deterministic_ops" not in flags:
+        os.environ["XLA_FLAGS"] = (flags + " --xla_gpu_deterministic_ops=true").strip()
 
 
 def run_cli(main: typing.Callable[[list[str] | None], int], prog: str, argv=None) -> int:
