@@ -337,6 +337,8 @@ def test_presets_hold_the_papers_hyperparameters():
         ({"num_envs": 0}, "num_envs"),
         ({"num_envs": 2**20, "total_timesteps": 2**60}, "overflows"),
         ({"bogus": 1}, "unknown PPOConfig field"),
+        ({"reward_scale": 0.0}, "reward_scale"),
+        ({"reward_scale": float("nan")}, "reward_scale"),
     ],
 )
 def test_invalid_config_raises_clear_error(overrides, message):
