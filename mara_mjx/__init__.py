@@ -9,6 +9,7 @@ Public API:
     EnvConfig / EnvParams / EnvState / RewardParams
 """
 
+import mara_mjx.gym  # noqa: F401  (registers the gymnasium ids mara_mjx/<task>-v0)
 from mara_mjx.envs import (
     BatchedEnv,
     BatchedState,

@@ -1,0 +1,329 @@
+"""Gymnasium adapter: the MARA tasks as `gymnasium.Env` and `gymnasium.vector.VectorEnv`.
+
+Host side, numpy in and out; the physics runs in JAX (jitted once per instance).
+
+    import gymnasium, mara_mjx                      # importing mara_mjx registers the ids
+    env = gymnasium.make("mara_mjx/MARACollisionOrient-v0", driver="real", velocity=0.3)
+    obs, info = env.reset(seed=0)                   # obs (16,) float32
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+
+    envs = gymnasium.make_vec("mara_mjx/MARA-v0", num_envs=64,
+                              vectorization_mode="vector_entry_point")
+    obs, infos = envs.reset(seed=0)                 # (64, 12) float32, one batched device call
+
+Registered ids: `mara_mjx/MARA-v0`, `mara_mjx/MARAOrient-v0`, `mara_mjx/MARACollision-v0`,
+`mara_mjx/MARACollisionOrient-v0`. Keyword arguments are the env options of
+`mara_mjx.make` (fields of `mara_mjx.EnvConfig`: driver, max_episode_steps, velocity,
+target_pos, target_quat, reset_noise, alpha, ..., done).
+
+Horizon: the ids are registered without a gymnasium `TimeLimit`; truncation comes from
+the env's own `max_episode_steps` (1024 by default). `MaraGymEnv(task,
+max_episode_steps=k)` and `gymnasium.make_vec(id, ..., max_episode_steps=k)` set that
+horizon. `gymnasium.make(id, max_episode_steps=k)` cannot: gymnasium's `make` keeps that
+argument for itself and wraps the env in its `TimeLimit(k)` (episodes then end at
+min(k, env horizon), the env's info unaware of k); use `MaraGymEnv` directly to set the
+env's own horizon.
+
+Observation: `Box(-inf, inf, (12,) or (16,), float32)`, layout in `mara_mjx.envs.mara`
+(q rad, e m, [quat_err], v m/s). Action: `Box(joint_lower, joint_upper, (6,), float32)`,
+absolute joint targets (rad). Values outside the box are clipped by the env; a wrong
+shape, a non-numeric dtype or a NaN/inf entry raises `ValueError` on the host.
+Reward: the task reward (Python float). `info`: the env's metrics (`mara_mjx.EnvState`
+metrics: distance m, position_error (3,) m, angle rad, ...) as numpy.
+
+`reset(seed=s)` seeds a JAX key (`jax.random.key(s)`); each reset draws a new subkey
+from it, so `reset_noise > 0` gives different episodes. `reset(options={...})` accepts
+the traced params of `env.make_params` (target_pos, target_quat, velocity, reset_noise,
+alpha, beta, gamma, delta, eta, done): they change without recompiling.
+
+Rendering is not part of this adapter (`render_mode` must be None; `render()` returns
+None), so `gymnasium.utils.env_checker.check_env` is run with `skip_render_check=True`.
+
+Vector env autoreset: `AutoresetMode.SAME_STEP` (declared in `metadata["autoreset_mode"]`),
+which is how `mara_mjx.BatchedEnv` resets on the device: the step that ends an episode
+returns that step's reward, terminated and truncated, the FIRST observation of the next
+episode as `obs`, and for the envs that ended `infos["final_obs"]` (object array of (obs,)
+arrays, None elsewhere; mask `infos["_final_obs"]`), `infos["final_info"]` (the ending
+step's metrics) and `infos["episode"]` ({"r": return, "l": length, "c": collisions}).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium
+import jax
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from mara_mjx.envs import BatchedEnv, make
+
+TASK_NAMES = ("MARA", "MARAOrient", "MARACollision", "MARACollisionOrient")
+NAMESPACE = "mara_mjx"
+VERSION = 0
+
+
+def gym_id(task: str) -> str:
+    """'mara_mjx/<task>-v0'."""
+    return f"{NAMESPACE}/{task}-v{VERSION}"
+
+
+def check_action(action: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """`action` as a float32 array of `shape` (rad); ValueError naming what is wrong."""
+    try:
+        arr = np.asarray(action)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"action must be an array of shape {shape} (rad): {e}") from e
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(
+            f"action must be numeric joint targets (rad, float32), got dtype {arr.dtype}"
+        )
+    if arr.shape != shape:
+        raise ValueError(f"action must have shape {shape} (joint targets, rad), got {arr.shape}")
+    arr = arr.astype(np.float32)
+    if not np.all(np.isfinite(arr)):
+        bad = np.argwhere(~np.isfinite(arr)).tolist()
+        raise ValueError(f"action has non-finite (NaN or inf) entries at indices {bad}")
+    return arr
+
+
+def _spaces(env: Any) -> tuple[spaces.Box, spaces.Box]:
+    obs_space = spaces.Box(-np.inf, np.inf, (env.observation_size,), np.float32)
+    action_space = spaces.Box(
+        env.joint_lower.astype(np.float32),
+        env.joint_upper.astype(np.float32),
+        (env.action_size,),
+        np.float32,
+    )
+    return obs_space, action_space
+
+
+def _check_render_mode(render_mode: str | None) -> None:
+    if render_mode is not None:
+        raise ValueError(
+            f"render_mode={render_mode!r} is not supported: the mara_mjx gymnasium adapter "
+            "does not render (render_mode must be None)"
+        )
+
+
+class MaraGymEnv(gymnasium.Env):
+    """One MARA task as a `gymnasium.Env` (host numpy in and out, JAX inside).
+
+    Args:
+      task: a name of `mara_mjx.registered()` ("MARA", "MARAOrient", "MARACollision",
+        "MARACollisionOrient", or your own registered variant).
+      render_mode: must be None (rendering is not supported here).
+      **overrides: env options of `mara_mjx.make` (EnvConfig fields), e.g.
+        max_episode_steps=256, driver="real", velocity=0.3, target_pos=(x, y, z).
+
+    `reset` and `step` are `jax.jit(env.reset)` and `jax.jit(env.step)`, compiled once
+    per instance at the first call (or at `precompile()`).
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, task: str = "MARA", render_mode: str | None = None, **overrides: Any):
+        _check_render_mode(render_mode)
+        self.env = make(task, **overrides)
+        self.task = task
+        self.render_mode = None
+        self.observation_space, self.action_space = _spaces(self.env)
+        self._jit_reset = jax.jit(self.env.reset)
+        self._jit_step = jax.jit(self.env.step)
+        self._key: jax.Array | None = None
+        self.state = None  # mara_mjx.EnvState after reset
+
+    @property
+    def max_episode_steps(self) -> int:
+        """The env's own horizon (steps)."""
+        return self.env.max_episode_steps
+
+    def precompile(self) -> MaraGymEnv:
+        """Compile reset and step now (they compile at first use otherwise). The env's
+        episode is untouched. Returns self."""
+        state = self._jit_reset(jax.random.key(0), self.env.default_params)
+        jax.block_until_ready(self._jit_step(state, np.zeros(self.env.action_size, np.float32)))
+        return self
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Start an episode. `seed` (int) seeds the JAX key; `options`: params overrides
+        (see `MaraEnv.make_params`). Returns obs (obs_size,) float32 and info."""
+        super().reset(seed=seed)
+        params = self.env.make_params(**options) if options else self.env.default_params
+        if seed is not None:
+            self._key = jax.random.key(seed)
+        elif self._key is None:
+            self._key = jax.random.key(int(self.np_random.integers(2**31)))
+        self._key, reset_key = jax.random.split(self._key)
+        self.state = self._jit_reset(reset_key, params)
+        obs, metrics = jax.device_get((self.state.obs, self.state.metrics))
+        return np.array(obs, np.float32), _numpy_info(metrics)
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        """Apply `action` (6,) rad. Returns obs (obs_size,) float32, reward, terminated
+        (physics blow-up), truncated (horizon reached) and info (metrics as numpy)."""
+        if self.state is None:
+            raise gymnasium.error.ResetNeeded("call reset() before step()")
+        action = check_action(action, self.action_space.shape)
+        self.state = self._jit_step(self.state, action)
+        s = self.state
+        obs, reward, terminated, truncated, metrics = jax.device_get(
+            (s.obs, s.reward, s.terminated, s.truncated, s.metrics)
+        )
+        return (
+            np.array(obs, np.float32),
+            float(reward),
+            bool(terminated),
+            bool(truncated),
+            _numpy_info(metrics),
+        )
+
+    def render(self) -> None:
+        """Rendering is not supported by this adapter: returns None."""
+        return None
+
+
+class MaraVectorEnv(VectorEnv):
+    """`num_envs` copies of one MARA task, batched on the device by `mara_mjx.BatchedEnv`.
+
+    Autoreset mode SAME_STEP (see the module docstring). Observations (N, obs_size)
+    float32, rewards (N,) float32, terminations/truncations (N,) bool; infos hold the
+    step's metrics (N, ...) (pre-reset values for envs that just ended), each with a
+    `_name` mask.
+
+    Args:
+      task: a name of `mara_mjx.registered()`.
+      num_envs: N.
+      reset_strategy: `BatchedEnv`'s ("select" or "cond").
+      render_mode: must be None.
+      **overrides: env options of `mara_mjx.make`.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(
+        self,
+        task: str = "MARA",
+        num_envs: int = 1,
+        reset_strategy: str = "select",
+        render_mode: str | None = None,
+        **overrides: Any,
+    ):
+        _check_render_mode(render_mode)
+        self.env = make(task, **overrides)
+        self.batched = BatchedEnv(self.env, num_envs, reset_strategy)
+        self.task = task
+        self.num_envs = num_envs
+        self.render_mode = None
+        self.single_observation_space, self.single_action_space = _spaces(self.env)
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self._jit_reset = jax.jit(self.batched.reset)
+        self._jit_step = jax.jit(self.batched.step)
+        self.state = None  # mara_mjx.BatchedState after reset
+
+    def precompile(self) -> MaraVectorEnv:
+        """Compile the batched reset and step now. The episodes are untouched. Returns self."""
+        state = self._jit_reset(jax.random.key(0), self.env.default_params)
+        action = np.zeros(self.action_space.shape, np.float32)
+        jax.block_until_ready(self._jit_step(state, action))
+        return self
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Reset all N envs. `seed`: one int (the N keys are split from `jax.random.key(seed)`);
+        `options`: params overrides shared by all envs (see `MaraEnv.make_params`)."""
+        if seed is not None and (not isinstance(seed, int | np.integer) or isinstance(seed, bool)):
+            raise ValueError(
+                f"seed must be one int (the {self.num_envs} env keys are split from it), "
+                f"got {seed!r}"
+            )
+        super().reset(seed=seed)
+        params = self.env.make_params(**options) if options else self.env.default_params
+        key = jax.random.key(int(self.np_random.integers(2**31)) if seed is None else int(seed))
+        self.state = self._jit_reset(key, params)
+        obs, metrics = jax.device_get((self.state.obs, self.state.metrics))
+        return np.array(obs, np.float32), self._infos(_numpy_info(metrics), None)
+
+    def step(
+        self, actions: Any
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """Step all envs with `actions` (N, 6) rad; ended episodes reset in the same step."""
+        if self.state is None:
+            raise gymnasium.error.ResetNeeded("call reset() before step()")
+        actions = check_action(actions, self.action_space.shape)
+        self.state = self._jit_step(self.state, actions)
+        s = self.state
+        host = jax.device_get(
+            (
+                s.obs,
+                s.reward,
+                s.terminated,
+                s.truncated,
+                s.final_obs,
+                s.episode_return,
+                s.episode_length,
+                s.episode_collisions,
+                s.metrics,
+            )
+        )
+        obs, reward, terminated, truncated, final_obs, ep_ret, ep_len, ep_col, metrics = host
+        done = np.asarray(terminated | truncated, bool)
+        infos = self._infos(_numpy_info(metrics), None)
+        if done.any():
+            final = np.full(self.num_envs, None, dtype=object)
+            for i in np.flatnonzero(done):
+                final[i] = np.array(final_obs[i], np.float32)
+            infos["final_obs"], infos["_final_obs"] = final, done.copy()
+            infos["final_info"] = self._infos(_numpy_info(metrics), done)
+            infos["_final_info"] = done.copy()
+            episode = {"r": ep_ret, "l": ep_len, "c": ep_col}
+            infos["episode"] = self._infos(_numpy_info(episode), done)
+            infos["_episode"] = done.copy()
+        return (
+            np.array(obs, np.float32),
+            np.array(reward, np.float32),
+            np.array(terminated, bool),
+            np.array(truncated, bool),
+            infos,
+        )
+
+    def render(self) -> None:
+        """Rendering is not supported by this adapter: returns None."""
+        return None
+
+    def _infos(self, values: dict[str, np.ndarray], mask: np.ndarray | None) -> dict[str, Any]:
+        """gymnasium's vector info layout: each key with a `_key` boolean mask."""
+        mask = np.ones(self.num_envs, bool) if mask is None else mask
+        out: dict[str, Any] = {}
+        for name, value in values.items():
+            out[name] = value
+            out[f"_{name}"] = mask.copy()
+        return out
+
+
+def _numpy_info(metrics: dict[str, Any]) -> dict[str, np.ndarray]:
+    return {k: np.array(v) for k, v in metrics.items()}
+
+
+def register_gym_ids() -> None:
+    """Register the four tasks with gymnasium (idempotent; builds nothing)."""
+    for task in TASK_NAMES:
+        env_id = gym_id(task)
+        if env_id in gymnasium.registry:
+            continue
+        gymnasium.register(
+            id=env_id,
+            entry_point="mara_mjx.gym:MaraGymEnv",
+            vector_entry_point="mara_mjx.gym:MaraVectorEnv",
+            max_episode_steps=None,
+            kwargs={"task": task},
+        )
+
+
+register_gym_ids()
