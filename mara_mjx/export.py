@@ -1,0 +1,284 @@
+"""Export a trained policy for use outside JAX: one .npz file, a pure-numpy policy.
+
+    python -m mara_mjx.export runs/MARA-.../ OUT.npz        # newest checkpoint of a run
+    python -m mara_mjx.export runs/MARA-.../checkpoints/ckpt_00000100.npz OUT.npz
+
+    from mara_mjx.export import load_exported
+    policy = load_exported("OUT.npz")
+    action = policy(obs)          # (obs_size,) or (N, obs_size) -> (..., 6) rad, numpy only
+
+What `policy(obs)` computes is what `mara_mjx.ppo.make_policy` computes (the
+deterministic Gaussian mean): z = clip((obs - mean) / sqrt(var + 1e-8), -obs_clip,
+obs_clip) when the run normalised observations (else z = obs), then the actor's tanh MLP
+(linear output layer). The action is an absolute joint target (rad) for motor1..motor6;
+the env clips it to the joint limits (`policy(obs, clip=True)` does the same here).
+
+File layout (`np.load(path)`; no pickles):
+    layer_<i>/kernel   (in, out) float32, i = 0 .. len(hidden_sizes)   y = x @ kernel + bias
+    layer_<i>/bias     (out,) float32
+    obs_mean, obs_var  (obs_size,) float32, only when the run normalised observations
+    __meta__           JSON: format, env_name, env_config, observation_size, action_size,
+                       hidden_sizes, activation, normalize_obs, obs_clip, obs_var_eps,
+                       observation_layout [{name, start, stop, units, description}],
+                       action {joint_names, lower, upper, units, description},
+                       source {checkpoint, update, env_steps}
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FORMAT = "mara_mjx.export/1"
+META_KEY = "__meta__"
+OBS_VAR_EPS = 1e-8  # mara_mjx.ppo.networks.normalize
+PROG = "python -m mara_mjx.export"
+
+
+class ExportError(ValueError):
+    """A missing or corrupt checkpoint or exported file, or an output that cannot be written."""
+
+
+def observation_layout(orientation: bool) -> list[dict[str, Any]]:
+    """Names, slices [start, stop), units of the MARA observation (mara_mjx.envs.mara)."""
+    parts = [
+        ("q", 6, "rad", "joint positions motor1..motor6"),
+        ("e", 3, "m", "p_tcp - p_target, world frame"),
+    ]
+    if orientation:
+        parts.append(
+            ("quat_err", 4, "", "quat_tcp (x) conj(quat_target), (w, x, y, z), quat_tcp w >= 0")
+        )
+    parts.append(("v", 3, "m/s", "TCP linear velocity J_pos(q) qdot, world frame"))
+    layout, start = [], 0
+    for name, size, units, description in parts:
+        layout.append(
+            {
+                "name": name,
+                "start": start,
+                "stop": start + size,
+                "units": units,
+                "description": description,
+            }
+        )
+        start += size
+    return layout
+
+
+def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) -> Path:
+    """Write the deterministic policy of `checkpoint` (a checkpoint file, or a run folder:
+    its newest checkpoint) to `out_path` (.npz), atomically. Raises ExportError (or
+    mara_mjx.ppo.CheckpointError, also a ValueError) with what is wrong."""
+    import mara_mjx
+    from mara_mjx.envs.arm import JOINTS
+    from mara_mjx.ppo import checkpoint as ckpt
+
+    out_path = Path(out_path)
+    if out_path.suffix != ".npz":
+        raise ExportError(f"output {str(out_path)!r} must end in .npz")
+    source = ckpt.find_checkpoint(checkpoint)
+    arrays, meta = ckpt.load_checkpoint(source)
+    policy = ckpt.policy_from_checkpoint(arrays, meta)
+    config = policy.config
+
+    env_name, env_config = meta["env_name"], meta["env_config"]
+    try:
+        overrides = {**ckpt.env_overrides(env_config), "check_target": False}
+        env = mara_mjx.make(env_name, **overrides)
+    except (ValueError, TypeError) as e:
+        raise ExportError(
+            f"cannot rebuild env {env_name!r} of the checkpoint (needed for the observation "
+            f"layout and the joint limits): {e}"
+        ) from e
+    if env.observation_size != meta["observation_size"]:
+        raise ExportError(
+            f"env {env_name!r} has observation size {env.observation_size}, but the checkpoint "
+            f"was trained on {meta['observation_size']}"
+        )
+    orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
+
+    out: dict[str, np.ndarray] = {}
+    actor = policy.params["params"]["actor"]
+    n_layers = len(config.hidden_sizes) + 1
+    for i in range(n_layers):
+        layer = actor[f"Dense_{i}"]
+        out[f"layer_{i}/kernel"] = np.asarray(layer["kernel"], np.float32)
+        out[f"layer_{i}/bias"] = np.asarray(layer["bias"], np.float32)
+    if policy.obs_stats is not None:
+        out["obs_mean"] = np.asarray(policy.obs_stats.mean, np.float32)
+        out["obs_var"] = np.asarray(policy.obs_stats.var, np.float32)
+    progress = meta.get("progress", {})
+    export_meta = {
+        "format": FORMAT,
+        "env_name": env_name,
+        "env_config": env_config,
+        "observation_size": int(meta["observation_size"]),
+        "action_size": int(meta["action_size"]),
+        "hidden_sizes": list(config.hidden_sizes),
+        "activation": "tanh",
+        "normalize_obs": policy.obs_stats is not None,
+        "obs_clip": float(config.obs_clip),
+        "obs_var_eps": OBS_VAR_EPS,
+        "observation_layout": observation_layout(orientation),
+        "action": {
+            "joint_names": list(JOINTS),
+            "lower": [float(x) for x in env.joint_lower],
+            "upper": [float(x) for x in env.joint_upper],
+            "units": "rad",
+            "description": "absolute joint position targets; the env clips them to [lower, upper]",
+        },
+        "source": {
+            "checkpoint": str(source.resolve()),
+            "update": progress.get("update"),
+            "env_steps": progress.get("env_steps"),
+        },
+    }
+    out[META_KEY] = np.array(json.dumps(export_meta))
+    _write_atomic(out_path, out)
+    return out_path
+
+
+def _write_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+        os.replace(tmp, path)
+    except OSError as e:
+        raise ExportError(f"cannot write {str(path)!r}: {e}") from e
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+@dataclasses.dataclass(frozen=True)
+class NumpyPolicy:
+    """The exported deterministic policy, numpy only. `policy(obs)` -> action (rad)."""
+
+    kernels: tuple[np.ndarray, ...]
+    """(in, out) per layer; tanh after every layer but the last."""
+    biases: tuple[np.ndarray, ...]
+    obs_mean: np.ndarray | None
+    """(obs_size,) or None when the run did not normalise observations."""
+    obs_var: np.ndarray | None
+    meta: dict[str, Any]
+    """The file's metadata (see the module docstring)."""
+
+    @property
+    def observation_size(self) -> int:
+        return int(self.meta["observation_size"])
+
+    @property
+    def action_size(self) -> int:
+        return int(self.meta["action_size"])
+
+    @property
+    def env_name(self) -> str:
+        return str(self.meta["env_name"])
+
+    @property
+    def joint_lower(self) -> np.ndarray:
+        """(6,) rad."""
+        return np.asarray(self.meta["action"]["lower"], np.float32)
+
+    @property
+    def joint_upper(self) -> np.ndarray:
+        """(6,) rad."""
+        return np.asarray(self.meta["action"]["upper"], np.float32)
+
+    @property
+    def observation_layout(self) -> dict[str, slice]:
+        """Observation part name -> slice of the last axis."""
+        return {p["name"]: slice(p["start"], p["stop"]) for p in self.meta["observation_layout"]}
+
+    def __call__(self, obs: Any, clip: bool = False) -> np.ndarray:
+        """obs (..., obs_size) raw observation -> action (..., action_size) float32 rad.
+        `clip`: clip to the joint limits as the env does (make_policy does not)."""
+        x = np.asarray(obs)
+        if x.dtype.kind not in "biuf":
+            raise ValueError(f"obs must be numeric, got dtype {x.dtype}")
+        if x.ndim < 1 or x.shape[-1] != self.observation_size:
+            raise ValueError(
+                f"obs must have shape (..., {self.observation_size}) for {self.env_name}, "
+                f"got {x.shape}"
+            )
+        x = x.astype(np.float64)
+        if self.obs_mean is not None:
+            clip_obs = float(self.meta["obs_clip"])
+            x = (x - self.obs_mean) / np.sqrt(self.obs_var.astype(np.float64) + OBS_VAR_EPS)
+            x = np.clip(x, -clip_obs, clip_obs)
+        for i, (kernel, bias) in enumerate(zip(self.kernels, self.biases, strict=True)):
+            x = x @ kernel.astype(np.float64) + bias
+            if i < len(self.kernels) - 1:
+                x = np.tanh(x)
+        if clip:
+            x = np.clip(x, self.joint_lower, self.joint_upper)
+        return x.astype(np.float32)
+
+
+def load_exported(path: str | os.PathLike) -> NumpyPolicy:
+    """The `NumpyPolicy` of a file written by `export_policy`; ExportError if missing,
+    corrupt or not such a file."""
+    path = Path(path)
+    if not path.is_file():
+        raise ExportError(f"exported policy {str(path)!r} does not exist (or is not a file)")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        meta = json.loads(str(arrays.pop(META_KEY)))
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+        raise ExportError(
+            f"{str(path)!r} is corrupt or not an exported mara_mjx policy: {e}"
+        ) from e
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        found = meta.get("format") if isinstance(meta, dict) else None
+        raise ExportError(f"{str(path)!r} has format {found!r}, expected {FORMAT!r}")
+    n_layers = len(meta["hidden_sizes"]) + 1
+    try:
+        kernels = tuple(arrays[f"layer_{i}/kernel"] for i in range(n_layers))
+        biases = tuple(arrays[f"layer_{i}/bias"] for i in range(n_layers))
+        stats = (arrays["obs_mean"], arrays["obs_var"]) if meta["normalize_obs"] else (None, None)
+    except KeyError as e:
+        raise ExportError(f"{str(path)!r} lacks the array {e}") from e
+    if (
+        kernels[0].shape[0] != meta["observation_size"]
+        or kernels[-1].shape[1] != (meta["action_size"])
+    ):
+        raise ExportError(f"{str(path)!r}: layer shapes do not match the observation/action sizes")
+    return NumpyPolicy(kernels, biases, stats[0], stats[1], meta)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from mara_mjx.ppo.flags import UserError
+
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+    parser.add_argument("checkpoint", help="checkpoint .npz file, or a run folder (its newest)")
+    parser.add_argument("out", help="output .npz file")
+    args = parser.parse_args(argv)
+    try:
+        out = export_policy(args.checkpoint, args.out)
+        policy = load_exported(out)
+    except ExportError as e:
+        raise UserError(str(e)) from e
+    norm = "with" if policy.obs_mean is not None else "without"
+    print(
+        f"wrote {out}: {policy.env_name} policy, obs {policy.observation_size} -> action "
+        f"{policy.action_size}, hidden {tuple(policy.meta['hidden_sizes'])}, {norm} "
+        "observation normalisation"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    from mara_mjx.ppo.flags import run_cli
+
+    sys.exit(run_cli(main, PROG))

@@ -1,0 +1,189 @@
+"""Policy export (numpy parity with make_policy) and the plotting CLI.
+
+Checkpoints are built without training: ActorCritic params (randomised so the mean is
+O(1), not the 0.01-gain init) and observation statistics, saved by the real
+`save_checkpoint` with the metadata the training CLI writes.
+"""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mara_mjx
+from mara_mjx.export import ExportError, load_exported
+from mara_mjx.export import main as export_main
+from mara_mjx.plots import main as plots_main
+from mara_mjx.ppo import ActorCritic, PPOConfig, RunningStats, make_policy
+from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo.flags import run_cli
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def _run(module: str, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", module, *args], capture_output=True, text=True, timeout=120
+    )
+
+
+def make_run(folder, env_name: str, normalize: bool, seed: int = 0):
+    """A run folder with one checkpoint of random (untrained) params; returns its path."""
+    env = mara_mjx.make(env_name)
+    config = PPOConfig(hidden_sizes=(32, 16), normalize_obs=normalize, obs_clip=5.0)
+    network = ActorCritic(env.action_size, config.hidden_sizes, config.init_log_std)
+    key, init_key, noise_key, stats_key = jax.random.split(jax.random.key(seed), 4)
+    params = network.init(init_key, jnp.zeros(env.observation_size))
+    leaves, treedef = jax.tree.flatten(params)
+    keys = jax.random.split(noise_key, len(leaves))
+    params = jax.tree.unflatten(
+        treedef, [0.5 * jax.random.normal(k, x.shape) for k, x in zip(keys, leaves, strict=True)]
+    )
+    state = {"params": params}
+    if normalize:
+        mean_key, var_key = jax.random.split(stats_key)
+        state["obs_stats"] = RunningStats(
+            mean=jax.random.normal(mean_key, (env.observation_size,)),
+            var=jax.random.uniform(var_key, (env.observation_size,), minval=0.01, maxval=4.0),
+            count=jnp.array(1000.0, jnp.float32),
+        )
+    meta = {
+        "env_name": env_name,
+        "env_config": env.config.to_dict(),
+        "observation_size": env.observation_size,
+        "action_size": env.action_size,
+        "ppo": config.to_dict(),
+        "run": {},
+        "eval": {},
+        "progress": {"update": 3, "env_steps": 300},
+    }
+    return ckpt.save_checkpoint(folder / "checkpoints" / ckpt.checkpoint_name(3), state, meta)
+
+
+@pytest.mark.parametrize(("env_name", "normalize"), [("MARA", True), ("MARAOrient", False)])
+def test_export_matches_make_policy(tmp_path, env_name, normalize):
+    path = make_run(tmp_path / "run", env_name, normalize)
+    out = tmp_path / "policy.npz"
+    from mara_mjx.export import export_policy
+
+    export_policy(tmp_path / "run", out)  # a run folder: its newest checkpoint
+    policy = load_exported(out)
+    reference = make_policy(path)
+    assert (reference.obs_stats is not None) == normalize
+    assert (policy.obs_mean is not None) == normalize
+
+    size = policy.observation_size
+    assert size == (16 if "Orient" in env_name else 12)
+    obs = np.random.default_rng(1).normal(0.0, 3.0, (64, size)).astype(np.float32)
+    obs[:4] *= 100.0  # normalised values beyond obs_clip: the clip must match too
+    expected = np.asarray(reference(jnp.asarray(obs)))
+    got = policy(obs)
+    assert got.shape == (64, 6) and got.dtype == np.float32
+    assert np.abs(expected).max() > 0.1  # not the near-zero init: the check has teeth
+    np.testing.assert_allclose(got, expected, atol=1e-5, rtol=0)
+    np.testing.assert_allclose(policy(obs[0]), expected[0], atol=1e-5, rtol=0)
+
+    env = mara_mjx.make(env_name)
+    np.testing.assert_array_equal(policy.joint_lower, env.joint_lower.astype(np.float32))
+    clipped = policy(obs, clip=True)
+    assert np.all(clipped >= policy.joint_lower) and np.all(clipped <= policy.joint_upper)
+    assert policy.meta["action"]["joint_names"][0] == "motor1"
+    assert policy.meta["action"]["units"] == "rad"
+    layout = policy.observation_layout
+    assert layout["q"] == slice(0, 6) and layout["e"] == slice(6, 9)
+    assert ("quat_err" in layout) == ("Orient" in env_name)
+    assert layout["v"].stop == size
+    assert policy.meta["env_config"]["max_episode_steps"] == 1024
+    assert policy.meta["source"]["update"] == 3
+
+    with pytest.raises(ValueError, match=rf"\(\.\.\., {size}\)"):
+        policy(np.zeros(size + 1))
+    with pytest.raises(ValueError, match="numeric"):
+        policy(np.array(["x"] * size))
+
+
+def test_export_cli(tmp_path, capsys):
+    make_run(tmp_path / "run", "MARA", True)
+    out = tmp_path / "exported" / "policy.npz"
+    result = _run("mara_mjx.export", str(tmp_path / "run"), str(out))
+    assert result.returncode == 0, result.stderr
+    assert "with observation normalisation" in result.stdout
+    assert load_exported(out).env_name == "MARA"
+
+    corrupt = tmp_path / "corrupt.npz"
+    corrupt.write_bytes(b"not a zip file")
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    (tmp_path / "empty_dir_is_no_run").mkdir()
+    cases = [
+        ([str(tmp_path / "missing"), str(out)], "does not exist"),
+        ([str(tmp_path / "empty_dir_is_no_run"), str(out)], "no checkpoints"),
+        ([str(corrupt), str(out)], "corrupt"),
+        ([str(tmp_path / "run"), str(blocker / "policy.npz")], "cannot write"),
+        ([str(tmp_path / "run"), str(tmp_path / "policy.txt")], "must end in .npz"),
+    ]
+    for argv, match in cases:
+        assert run_cli(export_main, "export", argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.startswith("export: error:") and match in err, err
+
+    with pytest.raises(ExportError, match="does not exist"):
+        load_exported(tmp_path / "nope.npz")
+    with pytest.raises(ExportError, match="corrupt"):
+        load_exported(corrupt)
+    ckpt_file = ckpt.find_checkpoint(tmp_path / "run")
+    with pytest.raises(ExportError, match="format"):
+        load_exported(ckpt_file)  # a checkpoint is not an exported policy
+
+
+def test_reward_shape_cli(tmp_path):
+    out = tmp_path / "figs" / "reward_shape.png"
+    result = _run("mara_mjx.plots", "reward-shape", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    data = out.read_bytes()
+    assert data.startswith(PNG) and len(data) > 20_000
+
+
+def _write_progress(folder, steps: int = 5, columns=("env_steps", "reward_mean", "entropy")):
+    folder.mkdir(parents=True)
+    with open(folder / "progress.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=["update", *columns])
+        writer.writeheader()
+        for i in range(steps):
+            row = {"update": i + 1, "env_steps": 1000 * (i + 1)}
+            row.update({"reward_mean": -1.0 + 0.2 * i, "entropy": 8.5 - 0.1 * i})
+            writer.writerow({k: v for k, v in row.items() if k in ("update", *columns)})
+
+
+def test_curves_cli(tmp_path, capsys):
+    _write_progress(tmp_path / "run_a")
+    _write_progress(tmp_path / "run_b", steps=3)
+    out = tmp_path / "curves.png"
+    runs = [str(tmp_path / "run_a"), str(tmp_path / "run_b")]
+    assert plots_main(["curves", *runs, "--out", str(out)]) == 0
+    data = out.read_bytes()
+    assert data.startswith(PNG) and len(data) > 10_000
+
+    _write_progress(tmp_path / "no_entropy", columns=("env_steps", "reward_mean"))
+    (tmp_path / "empty_run").mkdir()
+    _write_progress(tmp_path / "no_rows", steps=0)
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    cases = [
+        (["curves", str(tmp_path / "missing")], "does not exist"),
+        (["curves", str(tmp_path / "empty_run")], "no progress.csv"),
+        (["curves", str(tmp_path / "no_entropy")], "['entropy']"),
+        (["curves", str(tmp_path / "no_rows")], "no rows"),
+        (["curves", str(tmp_path / "run_a"), "--out", str(blocker / "x.png")], "cannot write"),
+        (["reward-shape", "--out", str(blocker / "x.png")], "cannot write"),
+    ]
+    for argv, match in cases:
+        assert run_cli(plots_main, "plots", argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.startswith("plots: error:") and match in err, err
