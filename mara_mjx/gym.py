@@ -82,7 +82,8 @@ def check_action(action: Any, shape: tuple[int, ...]) -> np.ndarray:
         )
     if arr.shape != shape:
         raise ValueError(f"action must have shape {shape} (joint targets, rad), got {arr.shape}")
-    arr = arr.astype(np.float32)
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow to inf is reported below
+        arr = arr.astype(np.float32)
     if not np.all(np.isfinite(arr)):
         bad = np.argwhere(~np.isfinite(arr)).tolist()
         raise ValueError(f"action has non-finite (NaN or inf) entries at indices {bad}")

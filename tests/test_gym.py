@@ -134,10 +134,6 @@ def test_bad_actions_raise(gym_envs):
     env.step([0, 0, 0, 0, 0, 0])
 
 
-def _ref_step(env: MaraGymEnv, state, action):
-    return env._jit_step(state, action)
-
-
 def test_vector_env_matches_single_env_through_autoreset(gym_envs, venv):
     """MaraVectorEnv(N) == N single envs run by the jitted env.reset/env.step with the
     keys BatchedEnv uses, including the SAME_STEP autoreset at the 2-step horizon."""
@@ -161,7 +157,7 @@ def test_vector_env_matches_single_env_through_autoreset(gym_envs, venv):
     returns = np.zeros(N)
     for t in range(3):
         obs, reward, terminated, truncated, info = venv.step(actions[t])
-        refs = [_ref_step(single, r, actions[t, i]) for i, r in enumerate(refs)]
+        refs = [single._jit_step(r, actions[t, i]) for i, r in enumerate(refs)]
         np.testing.assert_allclose(reward, [r.reward for r in refs], atol=1e-5)
         np.testing.assert_array_equal(truncated, [bool(r.truncated) for r in refs])
         assert not terminated.any()
@@ -186,9 +182,13 @@ def test_vector_env_matches_single_env_through_autoreset(gym_envs, venv):
             assert truncated.sum() == 0 and "final_obs" not in info
         np.testing.assert_allclose(obs, np.stack([r.obs for r in refs]), atol=1e-5)
     assert venv._jit_step._cache_size() == 1 and single._jit_step._cache_size() == 1
+    assert single._jit_reset._cache_size() == 1
 
 
 def test_vector_env_bad_input(venv):
+    obs_a, _ = venv.reset()  # unseeded: a random key, then continued
+    obs_b, _ = venv.reset()
+    assert not np.allclose(obs_a[:, :6], obs_b[:, :6])
     venv.reset(seed=0)
     with pytest.raises(ValueError, match="shape"):
         venv.step(np.zeros(6, np.float32))
