@@ -6,6 +6,23 @@ Studies:
         and driver over a sweep of environment counts. Compile time (first call) is
         reported apart from the steady state (median of `--repeats` timed calls after a
         warm-up). For the real driver, physics steps/s = env steps/s x substeps.
+  peers C MuJoCo vs MJX on the same physics, at each of `--peer-sizes` env counts.
+        What is compared: the `real` driver's work. C side: `mujoco.rollout.rollout`
+        (nthread = os.cpu_count(), one MjData per thread, persistent thread pool) of
+        N arms x `--steps` env steps x 10 substeps of mj_step (5 ms, implicitfast,
+        Newton, the model's contacts and position+velocity servos), open loop, with
+        the controls the real driver would send: per env step uniform random joint
+        targets, the servo reference moving toward them at `velocity` rad/s,
+        ctrl = [ref, ref_vel] (built in numpy beforehand, not timed). MJX side: the
+        `env` study's timing of `BatchedEnv.step` with the real driver (MARA task)
+        for the same N and steps, which does the same 10 mjx.step substeps plus
+        what C rollout does not: the final kinematics + collision for the pose,
+        observation, reward, penetration checks and auto-reset. So the ratio
+        MJX / C slightly favours C. Reported: env steps/s and physics steps/s (env
+        steps x 10) of both, and MJX / C (env steps/s ratio) on the MJX row.
+        C MuJoCo has no kinematics-only rollout, so the train driver has no C peer
+        here. `--skip-mjx` times the C side only (the MJX real-driver compile takes
+        about 35 s on a CPU). brax-PPO training is not part of the benchmark yet.
 
 Output: a table on the terminal, and in `--out` (default benchmarks/results/):
   <study>.json (records + device, versions, command), <study>.md, <study>.png.
@@ -26,6 +43,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 import mara_mjx
 from mara_mjx.envs.batched import BatchedEnv
@@ -139,27 +157,182 @@ def env_study(args: argparse.Namespace) -> list[dict[str, Any]]:
     return records
 
 
-def write_env_results(records: list[dict[str, Any]], out: Path, meta: dict[str, Any]) -> None:
+def c_rollout_inputs(
+    env: Any, num_envs: int, steps: int, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Initial states (num_envs, nstate) and controls (num_envs, steps * substeps, 12)
+    for `mujoco.rollout` equivalent to the MJX real driver: each env step draws uniform
+    joint targets in the joint box; over its `n_substeps` physics steps the servo
+    reference moves toward them at `velocity` rad/s, ctrl = [ref (6), ref_vel (6)]
+    as in `Arm.real_step`. The arm starts at rest at q = 0."""
+    import mujoco
+
+    m = env.arm.mj_model
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    state0 = np.empty(mujoco.mj_stateSize(m, spec))
+    mujoco.mj_getState(m, d, state0, spec)
+    rng = np.random.default_rng(seed)
+    dt, n_sub = env.arm.timestep, env.n_substeps
+    max_move = env.config.velocity * dt
+    ref = np.zeros((num_envs, 6))
+    ctrl = np.empty((num_envs, steps * n_sub, 12))
+    for t in range(steps):
+        command = rng.uniform(env.joint_lower, env.joint_upper, (num_envs, 6))
+        for k in range(n_sub):
+            move = np.clip(command - ref, -max_move, max_move)
+            ref = ref + move
+            ctrl[:, t * n_sub + k, :6] = ref
+            ctrl[:, t * n_sub + k, 6:] = move / dt
+    return np.tile(state0, (num_envs, 1)), ctrl
+
+
+def time_c_rollout(
+    env: Any, num_envs: int, steps: int, repeats: int, nthread: int
+) -> dict[str, Any]:
+    """Steady-state env steps/s of C MuJoCo `mujoco.rollout.rollout` on `nthread` CPU
+    threads (one MjData each) for `num_envs` arms x `steps` env steps (x substeps)."""
+    import mujoco
+    from mujoco import rollout
+
+    m = env.arm.mj_model
+    datas = [mujoco.MjData(m) for _ in range(nthread)]
+    state0, ctrl = c_rollout_inputs(env, num_envs, steps)
+    nstep = ctrl.shape[1]
+    state_out = np.empty((num_envs, nstep, state0.shape[1]))
+    sensor_out = np.empty((num_envs, nstep, m.nsensordata))
+
+    def call() -> float:
+        t0 = time.perf_counter()
+        rollout.rollout(
+            m,
+            datas,
+            state0,
+            ctrl,
+            control_spec=mujoco.mjtState.mjSTATE_CTRL,
+            state=state_out,
+            sensordata=sensor_out,
+            persistent_pool=True,
+        )
+        return time.perf_counter() - t0
+
+    first = call()
+    median = statistics.median(call() for _ in range(repeats))
+    sps = num_envs * steps / median
+    return {
+        "impl": f"mujoco C rollout ({nthread} threads)",
+        "device": f"cpu x{nthread}",
+        "num_envs": num_envs,
+        "steps_per_call": steps,
+        "substeps": env.n_substeps,
+        "first_call_s": first,
+        "median_call_s": median,
+        "env_steps_per_s": sps,
+        "physics_steps_per_s": sps * env.n_substeps,
+        "collision_fraction": None,
+        "mjx_over_c": None,
+    }
+
+
+def peers_study(args: argparse.Namespace) -> list[dict[str, Any]]:
+    """C MuJoCo rollout vs the MJX real driver, same env counts, same run."""
+    import os
+
+    task = args.tasks[0]
+    env = mara_mjx.make(task, driver="real")
+    nthread = os.cpu_count() or 1
+    records = []
+    for n in args.peer_sizes:
+        c = time_c_rollout(env, n, args.steps, args.repeats, nthread)
+        records.append(c)
+        if args.skip_mjx:
+            print(f"n={n:>7d}  C {c['physics_steps_per_s'] / 1e6:8.3f} M phys/s", flush=True)
+            continue
+        mj = time_env(task, "real", n, args.steps, args.repeats)
+        mj = {
+            "impl": "mjx real driver (BatchedEnv.step)",
+            "device": device_info()["device_kind"],
+            **mj,
+            "mjx_over_c": mj["env_steps_per_s"] / c["env_steps_per_s"],
+        }
+        records.append(mj)
+        print(
+            f"n={n:>7d}  C {c['physics_steps_per_s'] / 1e6:8.3f} M phys/s"
+            f"  MJX {mj['physics_steps_per_s'] / 1e6:8.3f} M phys/s"
+            f"  MJX/C {mj['mjx_over_c']:.2f}x",
+            flush=True,
+        )
+    return records
+
+
+STUDIES = {"env": env_study, "peers": peers_study}
+
+
+def _fmt_m(x: float | None) -> str:
+    """Millions with two decimals, or '' for None."""
+    return "" if x is None else f"{x / 1e6:.2f} M"
+
+
+# Per study: title, markdown columns (header, record -> text), plot series (record ->
+# label) and line style (record -> style). Every study plots env steps/s vs env count.
+STUDY_TABLES: dict[str, dict[str, Any]] = {
+    "env": {
+        "title": "env study: batched step throughput",
+        "columns": [
+            ("task", lambda r: r["task"]),
+            ("driver", lambda r: r["driver"]),
+            ("envs", lambda r: f"{r['num_envs']:,}"),
+            ("env steps/s", lambda r: _fmt_m(r["env_steps_per_s"])),
+            ("physics steps/s", lambda r: _fmt_m(r["physics_steps_per_s"])),
+            ("compile (s)", lambda r: f"{r['compile_s']:.1f}"),
+        ],
+        "series": lambda r: f"{r['task']} ({r['driver']})",
+        "style": lambda r: "-" if r["driver"] == "train" else "--",
+    },
+    "peers": {
+        "title": "peers study: C MuJoCo rollout (all CPU cores) vs MJX, real-driver physics",
+        "columns": [
+            ("implementation", lambda r: r["impl"]),
+            ("device", lambda r: r["device"]),
+            ("envs", lambda r: f"{r['num_envs']:,}"),
+            ("env steps/s", lambda r: _fmt_m(r["env_steps_per_s"])),
+            ("physics steps/s", lambda r: _fmt_m(r["physics_steps_per_s"])),
+            (
+                "MJX / C",
+                lambda r: "" if r.get("mjx_over_c") is None else f"{r['mjx_over_c']:.2f}x",
+            ),
+        ],
+        "series": lambda r: r["impl"],
+        "style": lambda r: "-" if r["impl"].startswith("mjx") else "--",
+    },
+}
+
+
+def write_results(
+    study: str, records: list[dict[str, Any]], out: Path, meta: dict[str, Any]
+) -> list[Path]:
+    """Write `<study>.json` (meta + records), `<study>.md` (table) and `<study>.png`
+    (env steps/s vs environments, log-log) into `out`. Returns the written paths."""
+    spec = STUDY_TABLES[study]
     out.mkdir(parents=True, exist_ok=True)
-    (out / "env.json").write_text(json.dumps({**meta, "records": records}, indent=2))
+    paths = [out / f"{study}.{ext}" for ext in ("json", "md", "png")]
+    paths[0].write_text(json.dumps({**meta, "records": records}, indent=2))
+    headers = [h for h, _ in spec["columns"]]
     lines = [
-        "# env study: batched step throughput",
+        f"# {spec['title']}",
         "",
         f"Device: {meta['device']['device_kind']} ({meta['device']['platform']}); "
         f"versions: jax {meta['versions']['jax']}, mujoco {meta['versions']['mujoco']}.",
         "",
         f"Command: `{meta['command']}`",
         "",
-        "| task | driver | envs | env steps/s | physics steps/s | compile (s) |",
-        "|---|---|---:|---:|---:|---:|",
+        "| " + " | ".join(headers) + " |",
+        "|" + "|".join("---" for _ in headers) + "|",
     ]
     for r in records:
-        phys = f"{r['physics_steps_per_s'] / 1e6:.2f} M" if r["physics_steps_per_s"] else ""
-        lines.append(
-            f"| {r['task']} | {r['driver']} | {r['num_envs']:,} | "
-            f"{r['env_steps_per_s'] / 1e6:.2f} M | {phys} | {r['compile_s']:.1f} |"
-        )
-    (out / "env.md").write_text("\n".join(lines) + "\n")
+        lines.append("| " + " | ".join(f(r) for _, f in spec["columns"]) + " |")
+    paths[1].write_text("\n".join(lines) + "\n")
 
     import matplotlib
 
@@ -167,27 +340,26 @@ def write_env_results(records: list[dict[str, Any]], out: Path, meta: dict[str, 
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4.5))
-    for driver in sorted({r["driver"] for r in records}):
-        for task in sorted({r["task"] for r in records}):
-            rs = [r for r in records if r["task"] == task and r["driver"] == driver]
-            if rs:
-                ax.plot(
-                    [r["num_envs"] for r in rs],
-                    [r["env_steps_per_s"] for r in rs],
-                    marker="o",
-                    linestyle="-" if driver == "train" else "--",
-                    label=f"{task} ({driver})",
-                )
+    for label in sorted({spec["series"](r) for r in records}):
+        rs = [r for r in records if spec["series"](r) == label]
+        ax.plot(
+            [r["num_envs"] for r in rs],
+            [r["env_steps_per_s"] for r in rs],
+            marker="o",
+            linestyle=spec["style"](rs[0]),
+            label=label,
+        )
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("environments")
     ax.set_ylabel("env steps / s")
-    ax.set_title(f"mara_mjx batched step, {meta['device']['device_kind']}")
+    ax.set_title(f"{study}: {meta['device']['device_kind']}")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "env.png", dpi=120)
+    fig.savefig(paths[2], dpi=120)
     plt.close(fig)
+    return paths
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
@@ -196,7 +368,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("study", choices=["env"], help="which study to run")
+    p.add_argument("study", choices=sorted(STUDIES), help="which study to run")
     p.add_argument("--tasks", nargs="+", default=list(mara_mjx.registered()))
     p.add_argument("--drivers", nargs="+", default=["train", "real"], choices=["train", "real"])
     p.add_argument(
@@ -213,6 +385,18 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         default=[16384],
         help="environment counts for the real driver",
     )
+    p.add_argument(
+        "--peer-sizes",
+        nargs="+",
+        type=int,
+        default=[256, 1024, 4096],
+        help="environment counts for the peers study (C rollout and MJX real driver)",
+    )
+    p.add_argument(
+        "--skip-mjx",
+        action="store_true",
+        help="peers: time the C rollout only (the MJX real-driver compile takes ~35 s on CPU)",
+    )
     p.add_argument("--steps", type=int, default=100, help="env steps per timed call")
     p.add_argument("--repeats", type=int, default=5, help="timed calls after the first")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="results folder")
@@ -221,10 +405,15 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     unknown = sorted(set(args.tasks) - set(mara_mjx.registered()))
     if unknown:
         p.error(f"unknown task(s) {unknown}; registered: {list(mara_mjx.registered())}")
-    if min(args.sizes + args.real_sizes) < 1 or args.steps < 1 or args.repeats < 1:
+    if (
+        min(args.sizes + args.real_sizes + args.peer_sizes) < 1
+        or args.steps < 1
+        or args.repeats < 1
+    ):
         p.error("--sizes, --real-sizes, --steps and --repeats must be positive")
     if args.quick:
-        args.sizes, args.real_sizes, args.steps, args.repeats = [4], [4], 4, 1
+        args.sizes, args.real_sizes, args.peer_sizes = [4], [4], [4]
+        args.steps, args.repeats = 4, 1
     try:
         args.out.mkdir(parents=True, exist_ok=True)
         probe = args.out / ".write_test"
@@ -246,9 +435,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
         "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
-    records = env_study(args)
-    write_env_results(records, args.out, meta)
-    print(f"wrote {args.out}/env.json, env.md, env.png")
+    records = STUDIES[args.study](args)
+    paths = write_results(args.study, records, args.out, meta)
+    print("wrote " + ", ".join(str(p) for p in paths))
 
 
 if __name__ == "__main__":
