@@ -66,27 +66,33 @@ def test_brax_adapter_matches_mara_env(brax_env):
     env = mara_mjx.make("MARA", max_episode_steps=NEVER)
     assert brax_env.observation_size == env.observation_size == 12
     assert brax_env.action_size == 6 and brax_env.backend == "mjx"
-    key = jax.random.PRNGKey(3)
-    bs = jax.jit(brax_env.reset)(key)
-    es = jax.jit(env.reset)(key)
-    assert isinstance(bs, State)
-    np.testing.assert_allclose(bs.obs, es.obs)
-    assert set(bs.metrics) == set(METRICS)
     a = jnp.array([-1.0, -0.5, 0.0, 0.25, 0.5, 1.0])
     q_cmd = brax_env.to_joint_targets(a)
     lo, hi = env.joint_lower, env.joint_upper
     np.testing.assert_allclose(q_cmd, lo + (a + 1) / 2 * (hi - lo), rtol=1e-6)
-    bstep, estep = jax.jit(brax_env.step), jax.jit(env.step)
-    for _ in range(2):
-        bs, es = bstep(bs, a), estep(es, q_cmd)
-        np.testing.assert_allclose(bs.obs, es.obs, rtol=1e-5, atol=1e-6)
-        np.testing.assert_allclose(bs.reward, es.reward, rtol=1e-5, atol=1e-6)
-        assert float(bs.done) == 0.0
-        np.testing.assert_allclose(bs.metrics["distance"], es.metrics["distance"], rtol=1e-6)
-        np.testing.assert_allclose(
-            bs.metrics["position_error_y"], es.metrics["position_error"][1], rtol=1e-6
-        )
-        assert all(v.shape == () for v in bs.metrics.values())
+
+    @jax.jit
+    def both(key):  # one compile: reset both, then two steps of each in a scan
+        def body(carry, _):
+            bs, es = carry
+            bs, es = brax_env.step(bs, a), env.step(es, q_cmd)
+            return (bs, es), (bs, es)
+
+        first = (brax_env.reset(key), env.reset(key))
+        return first, jax.lax.scan(body, first, None, length=2)[1]
+
+    (bs0, es0), (bs, es) = both(jax.random.PRNGKey(3))
+    assert isinstance(bs0, State)
+    np.testing.assert_allclose(bs0.obs, es0.obs)
+    assert set(bs.metrics) == set(METRICS)
+    np.testing.assert_allclose(bs.obs, es.obs, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(bs.reward, es.reward, rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(bs.done, 0.0)
+    np.testing.assert_allclose(bs.metrics["distance"], es.metrics["distance"], rtol=1e-6)
+    np.testing.assert_allclose(
+        bs.metrics["position_error_y"], es.metrics["position_error"][:, 1], rtol=1e-6
+    )
+    assert all(v.shape == (2,) for v in bs.metrics.values())  # () per step, stacked
 
 
 def test_brax_wrap_truncates_at_episode_length(brax_env):
