@@ -31,14 +31,14 @@ import dataclasses
 import json
 import os
 import sys
-import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from mara_mjx.npzmeta import META_KEY, NPZ_ERRORS, read_npz_with_meta
+
 FORMAT = "mara_mjx.export/1"
-META_KEY = "__meta__"
 OBS_VAR_EPS = 1e-8  # mara_mjx.ppo.networks.normalize
 PROG = "python -m mara_mjx.export"
 
@@ -232,10 +232,8 @@ def load_exported(path: str | os.PathLike) -> NumpyPolicy:
     if not path.is_file():
         raise ExportError(f"exported policy {str(path)!r} does not exist (or is not a file)")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-        meta = json.loads(str(arrays.pop(META_KEY)))
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+        arrays, meta = read_npz_with_meta(path)
+    except NPZ_ERRORS as e:
         raise ExportError(
             f"{str(path)!r} is corrupt or not an exported mara_mjx policy: {e}"
         ) from e

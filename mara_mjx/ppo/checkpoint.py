@@ -19,7 +19,6 @@ import os
 import platform
 import re
 import subprocess
-import zipfile
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -28,8 +27,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mara_mjx.npzmeta import META_KEY, NPZ_ERRORS, read_npz_with_meta
+
 FORMAT = "mara_mjx.ppo.checkpoint/1"
-META_KEY = "__meta__"
 CHECKPOINT_DIR = "checkpoints"
 _NAME = re.compile(r"^ckpt_(\d+)\.npz$")
 
@@ -127,10 +127,8 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dic
     if not path.is_file():
         raise CheckpointError(f"checkpoint {str(path)!r} does not exist (or is not a file)")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-        meta = json.loads(str(arrays.pop(META_KEY)))
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+        arrays, meta = read_npz_with_meta(path)
+    except NPZ_ERRORS as e:
         raise CheckpointError(
             f"checkpoint {str(path)!r} is corrupt or not a mara_mjx checkpoint: {e}"
         ) from e
