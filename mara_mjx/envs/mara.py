@@ -97,11 +97,7 @@ class MaraEnv:
                 )
         self.n_substeps = max(1, round(cfg.control_dt / self.arm.timestep))
         if cfg.check_target:
-            ik.check_reachable(
-                self.arm.mj_model,
-                np.asarray(cfg.target_pos),
-                _unit(cfg.target_quat) if task.orientation else None,
-            )
+            self._check_target(cfg)
         self.default_params = self.make_params()
 
     # ------------------------------------------------------------- properties
@@ -140,11 +136,7 @@ class MaraEnv:
         done)."""
         cfg = self.config.replace(**overrides) if overrides else self.config
         if overrides and cfg.check_target and ({"target_pos", "target_quat"} & set(overrides)):
-            ik.check_reachable(
-                self.arm.mj_model,
-                np.asarray(cfg.target_pos),
-                _unit(cfg.target_quat) if self.task.orientation else None,
-            )
+            self._check_target(cfg)
         f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
         return EnvParams(
             target_pos=f32(cfg.target_pos),
@@ -152,6 +144,15 @@ class MaraEnv:
             velocity=f32(cfg.velocity),
             reset_noise=f32(cfg.reset_noise),
             reward=jax.tree.map(f32, cfg.reward),
+        )
+
+    def _check_target(self, cfg: EnvConfig) -> None:
+        """ValueError unless a collision-free pose inside the joint limits reaches cfg's
+        target (its position, and its orientation for the Orient tasks)."""
+        ik.check_reachable(
+            self.arm.mj_model,
+            np.asarray(cfg.target_pos),
+            _unit(cfg.target_quat) if self.task.orientation else None,
         )
 
     # ------------------------------------------------------------------- API
