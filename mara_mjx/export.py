@@ -10,7 +10,8 @@
 What `policy(obs)` computes is what `mara_mjx.ppo.make_policy` computes (the
 deterministic Gaussian mean): z = clip((obs - mean) / sqrt(var + 1e-8), -obs_clip,
 obs_clip) when the run normalised observations (else z = obs), then the actor's tanh MLP
-(linear output layer). The action is an absolute joint target (rad) for motor1..motor6;
+(linear output layer), plus obs[..., :6] (the current joint positions) when the run
+used `relative_actions`. The action is an absolute joint target (rad) for motor1..motor6;
 the env clips it to the joint limits (`policy(obs, clip=True)` does the same here).
 
 File layout (`np.load(path)`; no pickles):
@@ -19,6 +20,7 @@ File layout (`np.load(path)`; no pickles):
     obs_mean, obs_var  (obs_size,) float32, only when the run normalised observations
     __meta__           JSON: format, env_name, env_config, observation_size, action_size,
                        hidden_sizes, activation, normalize_obs, obs_clip, obs_var_eps,
+                       relative_actions (add obs[..., :action_size] to the MLP output),
                        observation_layout [{name, start, stop, units, description}],
                        action {joint_names, lower, upper, units, description},
                        source {checkpoint, update, env_steps}
@@ -127,6 +129,7 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
         "normalize_obs": policy.obs_stats is not None,
         "obs_clip": float(config.obs_clip),
         "obs_var_eps": OBS_VAR_EPS,
+        "relative_actions": bool(config.relative_actions),
         "observation_layout": observation_layout(orientation),
         "action": {
             "joint_names": list(JOINTS),
@@ -211,7 +214,7 @@ class NumpyPolicy:
                 f"obs must have shape (..., {self.observation_size}) for {self.env_name}, "
                 f"got {x.shape}"
             )
-        x = x.astype(np.float64)
+        x = raw = x.astype(np.float64)
         if self.obs_mean is not None:
             clip_obs = float(self.meta["obs_clip"])
             x = (x - self.obs_mean) / np.sqrt(self.obs_var.astype(np.float64) + OBS_VAR_EPS)
@@ -220,6 +223,8 @@ class NumpyPolicy:
             x = x @ kernel.astype(np.float64) + bias
             if i < len(self.kernels) - 1:
                 x = np.tanh(x)
+        if self.meta.get("relative_actions", False):
+            x = x + raw[..., : self.action_size]
         if clip:
             x = np.clip(x, self.joint_lower, self.joint_upper)
         return x.astype(np.float32)

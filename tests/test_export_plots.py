@@ -20,9 +20,10 @@ import mara_mjx
 from mara_mjx.export import ExportError, load_exported
 from mara_mjx.export import main as export_main
 from mara_mjx.plots import main as plots_main
-from mara_mjx.ppo import ActorCritic, PPOConfig, RunningStats, make_policy
+from mara_mjx.ppo import PPOConfig, RunningStats, make_policy
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo.flags import run_cli
+from mara_mjx.ppo.networks import make_network
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -33,13 +34,16 @@ def _run(module: str, *args: str) -> subprocess.CompletedProcess:
     )
 
 
-def make_run(folder, env_name: str, normalize: bool, seed: int = 0):
+def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bool = False):
     """A run folder with one checkpoint of random (untrained) params; returns its path."""
     env = mara_mjx.make(env_name)
-    config = PPOConfig(hidden_sizes=(32, 16), normalize_obs=normalize, obs_clip=5.0)
-    network = ActorCritic(env.action_size, config.hidden_sizes, config.init_log_std)
+    config = PPOConfig(
+        hidden_sizes=(32, 16), normalize_obs=normalize, obs_clip=5.0, relative_actions=relative
+    )
+    network = make_network(config, env.action_size)
     key, init_key, noise_key, stats_key = jax.random.split(jax.random.key(seed), 4)
-    params = network.init(init_key, jnp.zeros(env.observation_size))
+    obs = jnp.zeros(env.observation_size)
+    params = network.init(init_key, obs, obs)
     leaves, treedef = jax.tree.flatten(params)
     keys = jax.random.split(noise_key, len(leaves))
     params = jax.tree.unflatten(
@@ -66,9 +70,11 @@ def make_run(folder, env_name: str, normalize: bool, seed: int = 0):
     return ckpt.save_checkpoint(folder / "checkpoints" / ckpt.checkpoint_name(3), state, meta)
 
 
-@pytest.mark.parametrize(("env_name", "normalize"), [("MARA", True), ("MARAOrient", False)])
-def test_export_matches_make_policy(tmp_path, env_name, normalize):
-    path = make_run(tmp_path / "run", env_name, normalize)
+@pytest.mark.parametrize(
+    ("env_name", "normalize", "relative"), [("MARA", True, False), ("MARAOrient", False, True)]
+)
+def test_export_matches_make_policy(tmp_path, env_name, normalize, relative):
+    path = make_run(tmp_path / "run", env_name, normalize, relative=relative)
     out = tmp_path / "policy.npz"
     from mara_mjx.export import export_policy
 
@@ -77,6 +83,7 @@ def test_export_matches_make_policy(tmp_path, env_name, normalize):
     reference = make_policy(path)
     assert (reference.obs_stats is not None) == normalize
     assert (policy.obs_mean is not None) == normalize
+    assert policy.meta["relative_actions"] == relative
 
     size = policy.observation_size
     assert size == (16 if "Orient" in env_name else 12)

@@ -33,6 +33,7 @@ from mara_mjx.ppo import (
 )
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo.flags import Section, add_flags, overrides
+from mara_mjx.ppo.networks import forward, make_network
 from mara_mjx.rewards import RewardParams
 
 # --------------------------------------------------------------------------- toy env
@@ -277,6 +278,27 @@ def test_gaussian_log_prob_and_entropy():
     np.testing.assert_allclose(gaussian_log_prob(mean, log_std, action), expected, rtol=1e-6)
     expected_entropy = 2 * 0.5 * math.log(2 * math.pi * math.e) + math.log(2.0)
     np.testing.assert_allclose(gaussian_entropy(log_std), expected_entropy, rtol=1e-6)
+
+
+def test_relative_actions_and_log_std_floor():
+    """relative_actions adds the raw observation's first action_size entries (the joint
+    positions) to the actor's output; log_std_floor clamps the log-std from below."""
+    obs = jnp.arange(24.0).reshape(2, 12) / 10.0
+    stats = RunningStats.create(12).replace(mean=jnp.full(12, 0.3), var=jnp.full(12, 4.0))
+    outputs = {}
+    for relative in (False, True):
+        config = PPOConfig(relative_actions=relative, log_std_floor=-3.0)
+        network = make_network(config, 6)
+        params = network.init(jax.random.key(0), obs[0], obs[0])  # same params both times
+        params["params"]["log_std"] = jnp.array([-5.0, -3.0, -3.0, -5.0, -4.0, -10.0])
+        outputs[relative] = forward(network, params, stats, obs, config.obs_clip)
+    (mean_abs, log_std, value_abs), (mean_rel, _, value_rel) = outputs[False], outputs[True]
+    assert float(jnp.abs(mean_abs).max()) > 1e-4  # the actor's output is not zero
+    np.testing.assert_allclose(mean_rel, mean_abs + obs[:, :6], rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(value_rel, value_abs)
+    np.testing.assert_array_equal(log_std, jnp.full((2, 6), -3.0))
+    with pytest.raises(ValueError, match="log_std_floor"):
+        PPOConfig(init_log_std=-2.0, log_std_floor=-1.0)
 
 
 def test_running_stats_match_numpy():

@@ -194,16 +194,16 @@ def load_policy(path: str | os.PathLike):
 def policy_from_checkpoint(arrays: dict[str, np.ndarray], meta: dict[str, Any]):
     """The deterministic `Policy` from `load_checkpoint` output."""
     from mara_mjx.ppo.config import PPOConfig
-    from mara_mjx.ppo.networks import ActorCritic, RunningStats
+    from mara_mjx.ppo.networks import RunningStats, make_network
     from mara_mjx.ppo.policy import Policy
 
     try:
         config = PPOConfig.from_dict(meta["ppo"])
     except (TypeError, ValueError) as e:
         raise CheckpointError(f"checkpoint holds an invalid PPO config: {e}") from e
-    network = ActorCritic(meta["action_size"], config.hidden_sizes, config.init_log_std)
+    network = make_network(config, meta["action_size"])
     obs = jax.ShapeDtypeStruct((meta["observation_size"],), jnp.float32)
-    template = jax.eval_shape(network.init, jax.random.key(0), obs)
+    template = jax.eval_shape(network.init, jax.random.key(0), obs, obs)
     params = arrays_to_state(arrays, template, prefix="params/")
     stats = None
     if config.normalize_obs:

@@ -104,6 +104,13 @@ class PPOConfig(_ConfigMixin):
     """Hidden layer widths of the policy MLP and of the separate value MLP (tanh)."""
     init_log_std: float = 0.0
     """Initial value of the state-independent log standard deviation (rad)."""
+    log_std_floor: float = -20.0
+    """Lower bound of the log standard deviation (the parameter is clamped with max(., floor)
+    wherever it is used); -20 is no bound."""
+    relative_actions: bool = False
+    """The Gaussian mean is the current joint positions (the observation's first entries)
+    plus the actor's output, instead of the actor's output alone (baselines). The env's
+    action is still absolute joint targets; only the policy's parametrisation changes."""
     normalize_obs: bool = False
     """Normalise observations by running mean and variance of the rollouts (Welford); the
     statistics are saved with the policy and applied by make_policy."""
@@ -165,7 +172,12 @@ class PPOConfig(_ConfigMixin):
                 f"hidden_sizes={self.hidden_sizes!r} must be a non-empty tuple of positive ints"
             )
         _check_range("init_log_std", self.init_log_std, -20.0, 5.0)
-        for name in ("clip_value", "normalize_obs", "normalize_advantages"):
+        _check_range("log_std_floor", self.log_std_floor, -20.0, 5.0)
+        if self.log_std_floor > self.init_log_std:
+            raise ValueError(
+                f"log_std_floor={self.log_std_floor} is above init_log_std={self.init_log_std}"
+            )
+        for name in ("clip_value", "normalize_obs", "normalize_advantages", "relative_actions"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
 

@@ -4,14 +4,21 @@ The networks are those of OpenAI baselines ppo2 with `value_network='copy'`, as 
 by the paper: a tanh MLP for the Gaussian mean and a separate tanh MLP of the same shape
 for the value, orthogonal initialisation (gain sqrt(2) for hidden layers, 0.01 for the
 policy head, 1 for the value head), zero biases, and a state-independent log standard
-deviation. The Gaussian mean is the action: absolute joint targets (rad) that the env
-clips to the joint limits.
+deviation. The Gaussian mean is the action: joint targets (rad) that the env clips to
+the joint limits, either the actor's output itself (`relative_actions=False`, baselines)
+or the current joint positions (the first `action_size` raw observation entries, which
+the MARA observation starts with) plus the actor's output (`relative_actions=True`, so
+that "stay" is the output 0). The log-std can be floored (`log_std_floor`).
+
+    network = make_network(config, action_size)
+    mean, log_std, value = forward(network, params, obs_stats, obs, config.obs_clip)
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import flax.linen as nn
 import jax
@@ -40,16 +47,45 @@ class ActorCritic(nn.Module):
     action_size: int
     hidden_sizes: Sequence[int] = (64, 64)
     init_log_std: float = 0.0
+    relative_actions: bool = False
+    log_std_floor: float = -20.0
 
     @nn.compact
-    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
-        """obs (..., obs_size) normalised -> mean (..., A), log_std (..., A), value (...)."""
+    def __call__(
+        self, obs: jax.Array, raw_obs: jax.Array | None = None
+    ) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """obs (..., obs_size) normalised (and the raw obs when relative_actions) ->
+        mean (..., A), log_std (..., A), value (...)."""
         mean = MLP(self.hidden_sizes, self.action_size, 0.01, name="actor")(obs)
+        if self.relative_actions:
+            if raw_obs is None:
+                raise ValueError("relative_actions: the network needs the raw observation")
+            mean = mean + raw_obs[..., : self.action_size]
         value = MLP(self.hidden_sizes, 1, 1.0, name="critic")(obs)[..., 0]
         log_std = self.param(
             "log_std", nn.initializers.constant(self.init_log_std), (self.action_size,)
         )
+        log_std = jnp.maximum(log_std, self.log_std_floor)
         return mean, jnp.broadcast_to(log_std, mean.shape), value
+
+
+def make_network(config: Any, action_size: int) -> ActorCritic:
+    """The ActorCritic a PPOConfig describes (the one constructor: training, policies and
+    checkpoints all build it here)."""
+    return ActorCritic(
+        action_size,
+        tuple(config.hidden_sizes),
+        config.init_log_std,
+        config.relative_actions,
+        config.log_std_floor,
+    )
+
+
+def forward(
+    network: ActorCritic, params: Any, stats: RunningStats | None, obs: jax.Array, clip: float
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Raw obs (..., obs_size) -> (mean, log_std, value): normalise, then the network."""
+    return network.apply(params, normalize(stats, obs, clip), obs)
 
 
 def gaussian_log_prob(mean: jax.Array, log_std: jax.Array, action: jax.Array) -> jax.Array:

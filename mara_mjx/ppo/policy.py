@@ -19,7 +19,7 @@ import jax
 from flax import struct
 
 from mara_mjx.ppo.config import PPOConfig
-from mara_mjx.ppo.networks import ActorCritic, RunningStats, normalize
+from mara_mjx.ppo.networks import ActorCritic, RunningStats, forward, make_network
 
 
 @struct.dataclass
@@ -33,18 +33,17 @@ class Policy:
 
     @property
     def network(self) -> ActorCritic:
-        return ActorCritic(self.action_size, self.config.hidden_sizes, self.config.init_log_std)
+        return make_network(self.config, self.action_size)
 
     def __call__(self, obs: jax.Array) -> jax.Array:
         """obs (..., obs_size) raw -> action (..., action_size) rad."""
-        x = normalize(self.obs_stats, obs, self.config.obs_clip)
-        mean, _, _ = self.network.apply(self.params, x)
-        return mean
+        return self.distribution(obs)[0]
 
     def distribution(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Gaussian (mean, log_std), each (..., action_size), for stochastic use."""
-        x = normalize(self.obs_stats, obs, self.config.obs_clip)
-        mean, log_std, _ = self.network.apply(self.params, x)
+        mean, log_std, _ = forward(
+            self.network, self.params, self.obs_stats, obs, self.config.obs_clip
+        )
         return mean, log_std
 
 

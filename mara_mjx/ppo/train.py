@@ -40,9 +40,10 @@ from mara_mjx.ppo.losses import gae, ppo_loss
 from mara_mjx.ppo.networks import (
     ActorCritic,
     RunningStats,
+    forward,
     gaussian_entropy,
     gaussian_log_prob,
-    normalize,
+    make_network,
     update_stats,
 )
 
@@ -128,7 +129,7 @@ def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
 def make_train(env: Any, config: PPOConfig, updates_per_call: int = 1) -> Trainer:
     """PPO on `config.num_envs` copies of `env` (any env BatchedEnv can wrap)."""
     benv = BatchedEnv(env, config.num_envs)
-    network = ActorCritic(benv.action_size, config.hidden_sizes, config.init_log_std)
+    network = make_network(config, benv.action_size)
     optimizer = make_optimizer(config)
     lr_at_update = make_lr_schedule(config)
     obs_size = benv.observation_size
@@ -137,11 +138,12 @@ def make_train(env: Any, config: PPOConfig, updates_per_call: int = 1) -> Traine
         return state.obs_stats if config.normalize_obs else None
 
     def policy(params: Any, stats: RunningStats | None, obs: jax.Array):
-        return network.apply(params, normalize(stats, obs, config.obs_clip))
+        return forward(network, params, stats, obs, config.obs_clip)
 
     def init(key: jax.Array) -> RunnerState:
         key, net_key, env_key = jax.random.split(key, 3)
-        params = network.init(net_key, jnp.zeros((obs_size,), jnp.float32))
+        obs = jnp.zeros((obs_size,), jnp.float32)
+        params = network.init(net_key, obs, obs)
         return RunnerState(
             params=params,
             opt_state=optimizer.init(params),
