@@ -36,8 +36,15 @@ from it, so `reset_noise > 0` gives different episodes. `reset(options={...})` a
 the traced params of `env.make_params` (target_pos, target_quat, velocity, reset_noise,
 alpha, beta, gamma, delta, eta, done): they change without recompiling.
 
-Rendering is not part of this adapter (`render_mode` must be None; `render()` returns
-None), so `gymnasium.utils.env_checker.check_env` is run with `skip_render_check=True`.
+Rendering (`MaraGymEnv` only; C MuJoCo on the host, `mara_mjx.render`):
+`render_mode="rgb_array"`: `render()` returns a (height, width, 3) uint8 frame (640 x 480
+unless `width=`/`height=` are given; `camera=` a model camera name, default a free camera
+on the workspace) of the arm at the current joint positions, with the TCP site and the
+target marker at the env's target; offscreen through EGL or OSMesa (MUJOCO_GL if set).
+`render_mode="human"`: the interactive MuJoCo viewer (needs a desktop), updated at every
+reset and step. `metadata["render_fps"]` is 1 / control_dt (20 by default). `check_env`
+builds every declared render mode, the viewer included, so run it with
+`skip_render_check=True` on a machine without a display.
 
 Vector env autoreset: `AutoresetMode.SAME_STEP` (declared in `metadata["autoreset_mode"]`),
 which is how `mara_mjx.BatchedEnv` resets on the device: the step that ends an episode
@@ -101,12 +108,13 @@ def _spaces(env: Any) -> tuple[spaces.Box, spaces.Box]:
     return obs_space, action_space
 
 
-def _check_render_mode(render_mode: str | None) -> None:
-    if render_mode is not None:
-        raise ValueError(
-            f"render_mode={render_mode!r} is not supported: the mara_mjx gymnasium adapter "
-            "does not render (render_mode must be None)"
-        )
+RENDER_MODES = ("rgb_array", "human")
+
+
+def _check_render_mode(render_mode: str | None, valid: tuple[str, ...], where: str) -> None:
+    if render_mode is not None and render_mode not in valid:
+        choices = ", ".join(repr(m) for m in (None, *valid))
+        raise ValueError(f"render_mode={render_mode!r} is not supported by {where}; use {choices}")
 
 
 class MaraGymEnv(gymnasium.Env):
@@ -115,22 +123,45 @@ class MaraGymEnv(gymnasium.Env):
     Args:
       task: a name of `mara_mjx.registered()` ("MARA", "MARAOrient", "MARACollision",
         "MARACollisionOrient", or your own registered variant).
-      render_mode: must be None (rendering is not supported here).
+      render_mode: None, "rgb_array" (frames from `render()`) or "human" (the MuJoCo
+        viewer on a desktop).
+      width, height: rgb_array frame size in pixels (at most 1280 x 720).
+      camera: rgb_array camera: None (a free camera on the workspace) or a model camera
+        ("front", "side").
       **overrides: env options of `mara_mjx.make` (EnvConfig fields), e.g.
         max_episode_steps=256, driver="real", velocity=0.3, target_pos=(x, y, z).
 
     `reset` and `step` are `jax.jit(env.reset)` and `jax.jit(env.step)`, compiled once
-    per instance at the first call (or at `precompile()`).
+    per instance at the first call (or at `precompile()`). A renderer or viewer is made
+    at construction, so a machine that cannot render fails here (`RenderError`).
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": list(RENDER_MODES), "render_fps": 20}
 
-    def __init__(self, task: str = "MARA", render_mode: str | None = None, **overrides: Any):
-        _check_render_mode(render_mode)
+    def __init__(
+        self,
+        task: str = "MARA",
+        render_mode: str | None = None,
+        width: int = 640,
+        height: int = 480,
+        camera: str | None = None,
+        **overrides: Any,
+    ):
+        _check_render_mode(render_mode, RENDER_MODES, "MaraGymEnv")
         self.env = make(task, **overrides)
         self.task = task
-        self.render_mode = None
+        self.render_mode = render_mode
+        self.metadata = {**self.metadata, "render_fps": 1.0 / self.env.config.control_dt}
         self.observation_space, self.action_space = _spaces(self.env)
+        self._renderer = self._viewer = None
+        if render_mode == "rgb_array":
+            from mara_mjx.render import ArmRenderer
+
+            self._renderer = ArmRenderer(width, height, camera)
+        elif render_mode == "human":
+            from mara_mjx.render import Viewer
+
+            self._viewer = Viewer()
         self._jit_reset = jax.jit(self.env.reset)
         self._jit_step = jax.jit(self.env.step)
         self._key: jax.Array | None = None
@@ -162,6 +193,8 @@ class MaraGymEnv(gymnasium.Env):
         self._key, reset_key = jax.random.split(self._key)
         self.state = self._jit_reset(reset_key, params)
         obs, metrics = jax.device_get((self.state.obs, self.state.metrics))
+        if self.render_mode == "human":
+            self.render()
         return np.array(obs, np.float32), _numpy_info(metrics)
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -175,6 +208,8 @@ class MaraGymEnv(gymnasium.Env):
         obs, reward, terminated, truncated, metrics = jax.device_get(
             (s.obs, s.reward, s.terminated, s.truncated, s.metrics)
         )
+        if self.render_mode == "human":
+            self.render()
         return (
             np.array(obs, np.float32),
             float(reward),
@@ -183,9 +218,30 @@ class MaraGymEnv(gymnasium.Env):
             _numpy_info(metrics),
         )
 
-    def render(self) -> None:
-        """Rendering is not supported by this adapter: returns None."""
+    def render(self) -> np.ndarray | None:
+        """rgb_array: (height, width, 3) uint8 frame of the arm at the current joint
+        positions with the target marker at the episode's target. human: update the
+        viewer, return None. No render_mode: None."""
+        if self.render_mode is None:
+            return None
+        if self.state is None:
+            raise gymnasium.error.ResetNeeded("call reset() before render()")
+        q, target_pos, target_quat = jax.device_get(
+            (self.state.q, self.state.params.target_pos, self.state.params.target_quat)
+        )
+        if self._renderer is not None:
+            return self._renderer.frame(q, target_pos, target_quat)
+        self._viewer.show(q, target_pos, target_quat)
         return None
+
+    def close(self) -> None:
+        """Free the renderer or close the viewer."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None
 
 
 class MaraVectorEnv(VectorEnv):
@@ -200,7 +256,7 @@ class MaraVectorEnv(VectorEnv):
       task: a name of `mara_mjx.registered()`.
       num_envs: N.
       reset_strategy: `BatchedEnv`'s ("select" or "cond").
-      render_mode: must be None.
+      render_mode: must be None (to watch an arm, use `MaraGymEnv(render_mode=...)`).
       **overrides: env options of `mara_mjx.make`.
     """
 
@@ -214,7 +270,7 @@ class MaraVectorEnv(VectorEnv):
         render_mode: str | None = None,
         **overrides: Any,
     ):
-        _check_render_mode(render_mode)
+        _check_render_mode(render_mode, (), "MaraVectorEnv (watch one arm with MaraGymEnv)")
         self.env = make(task, **overrides)
         self.batched = BatchedEnv(self.env, num_envs, reset_strategy)
         self.task = task

@@ -1,0 +1,363 @@
+"""Watch a policy: python -m mara_mjx.play CHECKPOINT
+
+    python -m mara_mjx.play runs/MARA-20250101-120000          # the MuJoCo viewer (desktop)
+    python -m mara_mjx.play RUN -r                             # real-speed driver (servos)
+    python -m mara_mjx.play RUN -v 0.3                         # real driver at 0.3 rad/s
+    python -m mara_mjx.play RUN --video out.mp4                # offscreen, no display needed
+    python -m mara_mjx.play RUN --video out.gif --width 320 --height 240 --episodes 1
+
+Runs the deterministic policy (the Gaussian mean) of a checkpoint (a file, or a run
+folder: its newest checkpoint) in the env the checkpoint names, and shows the arm, its
+TCP (red) and the target marker (green, with its z axis in blue):
+
+* default: the interactive MuJoCo viewer (gym-gazebo2's `-g`), one env step per control
+  period (`control_dt`, 50 ms) of wall-clock time; closing the window stops.
+* `--video PATH` (.mp4 or .gif): frames rendered offscreen (EGL or OSMesa, see
+  `mara_mjx.render`), one per env step, at `--fps` (default 1 / control_dt: real time).
+
+`-r/--real-speed` runs the `real` driver (servo dynamics) instead of the checkpoint's;
+`-v/--velocity V` sets its servo speed (rad/s, in (0, 1.57]) and implies `-r`, as
+gym-gazebo2's `-r`/`-v` flags did. The episodes are those of `python -m mara_mjx.evaluate`
+with the same flags: episode i resets from key split(key(seed), episodes)[i] with a joint
+noise of half-width `--noise` rad and stops at the first step where every axis of the
+position error is within `--tolerance_mm` (5 mm, the paper's run scripts; 0 runs to the
+horizon). At the end: each episode's final per-axis error (mm, and deg for the Orient
+tasks), then the accuracy table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import mara_mjx
+from mara_mjx.envs.base import EnvConfig
+from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo.config import EvalConfig
+from mara_mjx.ppo.evaluation import EvalResult, format_table
+from mara_mjx.ppo.flags import Section, UserError, add_flags, configure_jax, overrides, run_cli
+
+PROG = "mara_mjx.play"
+VIDEO_FORMATS = (".mp4", ".gif")
+SECTIONS = (
+    Section("eval", EvalConfig),
+    # The reset noise is the eval section's --noise; rewards do not change what is shown.
+    Section("env", EnvConfig, exclude=("reward", "reset_noise")),
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m mara_mjx.play",
+        description="Watch a PPO checkpoint's deterministic policy: the MuJoCo viewer, or "
+        "a video rendered offscreen (--video).",
+        allow_abbrev=False,
+    )
+    parser.add_argument(
+        "checkpoint",
+        metavar="CHECKPOINT",
+        help="checkpoint file (.npz) or run folder (its newest checkpoint)",
+    )
+    parser.add_argument(
+        "-r",
+        "--real-speed",
+        dest="env.driver",
+        action="store_const",
+        const="real",
+        default=argparse.SUPPRESS,
+        help="use the real-speed driver (velocity-limited servos and arm dynamics), "
+        "like gym-gazebo2's -r (same as --driver real)",
+    )
+    parser.add_argument(
+        "-v",
+        "--velocity",
+        dest="env.velocity",
+        type=float,
+        metavar="V",
+        default=argparse.SUPPRESS,
+        help="servo speed of the real driver (rad/s, in (0, 1.57], default 0.5); implies -r, "
+        "like gym-gazebo2's -v",
+    )
+    video = parser.add_argument_group("video (offscreen, no display needed)")
+    video.add_argument(
+        "--video",
+        metavar="PATH",
+        help="write the episodes to PATH (.mp4 or .gif) instead of opening the viewer",
+    )
+    video.add_argument("--width", type=int, default=640, help="frame width (px, default 640)")
+    video.add_argument("--height", type=int, default=480, help="frame height (px, default 480)")
+    video.add_argument(
+        "--fps",
+        type=float,
+        help="video frame rate (default 1 / control_dt: one frame per env step, real time)",
+    )
+    video.add_argument(
+        "--camera",
+        help="a model camera (front, side); default a free camera on the workspace",
+    )
+    parser.add_argument(
+        "--hold",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="seconds to show each episode's final pose (default 1)",
+    )
+    add_flags(parser, SECTIONS)
+    return parser
+
+
+# ------------------------------------------------------------------- checks
+
+
+def check_video_args(args: argparse.Namespace) -> Path | None:
+    """The video path (None: the viewer), after checking every video flag."""
+    if not (math.isfinite(args.hold) and args.hold >= 0):
+        raise UserError(f"--hold {args.hold} must be a number of seconds >= 0")
+    if args.video is None:
+        return None
+    path = Path(args.video)
+    if path.suffix.lower() not in VIDEO_FORMATS:
+        raise UserError(
+            f"--video {str(path)!r}: unknown extension {path.suffix or '(none)'!r}; "
+            f"use one of {', '.join(VIDEO_FORMATS)}"
+        )
+    if path.is_dir():
+        raise UserError(f"--video {str(path)!r} is a folder; give a file name ending in .mp4/.gif")
+    for name, value, limit in (("width", args.width, 1280), ("height", args.height, 720)):
+        if not 1 <= value <= limit:
+            raise UserError(f"--{name} {value} must be in [1, {limit}] pixels")
+    if path.suffix.lower() == ".mp4":
+        if args.width % 2 or args.height % 2:
+            raise UserError(
+                f"--width and --height must be even for .mp4 (H.264), got "
+                f"{args.width} x {args.height}"
+            )
+        try:
+            import imageio_ffmpeg
+
+            imageio_ffmpeg.get_ffmpeg_exe()
+        except (ImportError, RuntimeError) as e:
+            raise UserError(f"cannot write .mp4 (no ffmpeg: {e}); use .gif instead") from e
+    if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
+        raise UserError(f"--fps {args.fps} must be a number > 0")
+    try:
+        ckpt.check_writable(path.parent)
+    except OSError as e:
+        raise UserError(f"cannot write the video to {str(path)!r}: {e}") from e
+    return path
+
+
+def env_options(args: argparse.Namespace, meta: dict[str, Any]) -> dict[str, Any]:
+    """The checkpoint's env config with the command line's overrides; -v implies -r."""
+    flags = overrides(args, "env")
+    if "velocity" in flags:
+        if flags.get("driver", "real") != "real":
+            raise UserError(
+                "--velocity sets the real driver's servo speed; it cannot be used with "
+                f"--driver {flags['driver']}"
+            )
+        flags["driver"] = "real"
+    return {**ckpt.env_overrides(meta["env_config"]), **flags}
+
+
+# ------------------------------------------------------------------- output
+
+
+class VideoWriter:
+    """Frames (H, W, 3) uint8 into an .mp4 (H.264 through imageio-ffmpeg's ffmpeg,
+    streamed) or a .gif (Pillow; held in memory as palette images, 1 byte a pixel)."""
+
+    def __init__(self, path: Path, fps: float, width: int, height: int):
+        self.path, self.fps, self.frames = path, fps, 0
+        self._gif: list[Any] | None = None
+        self._mp4 = None
+        if path.suffix.lower() == ".gif":
+            self._gif = []
+        else:
+            import imageio_ffmpeg
+
+            self._mp4 = imageio_ffmpeg.write_frames(
+                str(path), (width, height), fps=fps, codec="libx264", macro_block_size=2
+            )
+            self._mp4.send(None)
+
+    def append(self, frame: np.ndarray) -> None:
+        if self._gif is not None:
+            from PIL import Image
+
+            self._gif.append(Image.fromarray(frame).quantize(colors=256))
+        else:
+            self._mp4.send(np.ascontiguousarray(frame))
+        self.frames += 1
+
+    def close(self) -> None:
+        if self._mp4 is not None:
+            self._mp4.close()
+            self._mp4 = None
+        if self._gif:
+            first, *rest = self._gif
+            # GIF delays are whole hundredths of a second.
+            delay = max(10, int(round(100.0 / self.fps)) * 10)
+            first.save(self.path, save_all=True, append_images=rest, duration=delay, loop=0)
+            self._gif = None
+
+
+def episode_line(i: int, record: dict[str, Any], orientation: bool, tolerance_mm: float) -> str:
+    x, y, z = record["position_error_mm"]
+    line = f"episode {i}: {record['steps']} steps"
+    if tolerance_mm > 0:
+        line += f" ({'reached' if record['reached'] else 'did not reach'} {tolerance_mm:g} mm)"
+    line += f", final error x {x:.2f} y {y:.2f} z {z:.2f} mm"
+    if orientation:
+        rx, ry, rz = record["orientation_error_deg"]
+        line += f", orientation x {rx:.2f} y {ry:.2f} z {rz:.2f} deg"
+    return line + f", collisions {record['collisions']}, return {record['episode_return']:.1f}"
+
+
+# ---------------------------------------------------------------------- main
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    configure_jax()
+    video_path = check_video_args(args)
+    path = ckpt.find_checkpoint(args.checkpoint)
+    arrays, meta = ckpt.load_checkpoint(path)
+    policy = ckpt.policy_from_checkpoint(arrays, meta)
+    try:
+        config = EvalConfig().replace(**overrides(args, "eval"))
+    except ValueError as e:
+        raise UserError(f"invalid episode settings: {e}") from e
+    name = meta["env_name"]
+    if name not in mara_mjx.registered():
+        raise UserError(
+            f"checkpoint env {name!r} is not registered; registered: {mara_mjx.registered()}"
+        )
+    try:
+        env = mara_mjx.make(name, **env_options(args, meta))
+    except ValueError as e:
+        raise UserError(f"cannot build env {name}: {e}") from e
+    if env.observation_size != meta["observation_size"]:
+        raise UserError(
+            f"env {name} observes {env.observation_size} values, the policy expects "
+            f"{meta['observation_size']}"
+        )
+
+    # The renderer or the viewer before anything compiles: a machine that cannot show
+    # anything fails in a second.
+    from mara_mjx import render
+
+    try:
+        if video_path is None:
+            viewer, renderer = render.Viewer(), None
+        else:
+            viewer, renderer = None, render.ArmRenderer(args.width, args.height, args.camera)
+    except (render.RenderError, ValueError) as e:
+        raise UserError(str(e)) from e
+
+    cfg = env.config
+    print(f"checkpoint: {path}")
+    print(
+        f"env: {name}, driver {cfg.driver!r}"
+        + (f", velocity {cfg.velocity:g} rad/s" if cfg.driver == "real" else "")
+        + f", control period {cfg.control_dt:g} s, horizon {env.max_episode_steps} steps",
+        flush=True,
+    )
+    fps = args.fps if args.fps is not None else 1.0 / cfg.control_dt
+    writer = VideoWriter(video_path, fps, args.width, args.height) if video_path else None
+    try:
+        records = run_episodes(env, policy, config, viewer, renderer, writer, args.hold)
+    finally:
+        if writer is not None:
+            writer.close()
+        if renderer is not None:
+            renderer.close()
+        if viewer is not None:
+            viewer.close()
+
+    orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
+    for i, record in enumerate(records):
+        print(episode_line(i, record, orientation, config.tolerance_mm))
+    if records:
+        result = EvalResult(**{k: np.array([r[k] for r in records]) for k in records[0]})
+        print(format_table(name, result, orientation, config))
+    if len(records) < config.episodes:
+        print(f"stopped after {len(records)} of {config.episodes} episodes (viewer closed)")
+    if writer is not None:
+        print(f"wrote {video_path} ({writer.frames} frames at {fps:g} fps)")
+    return 0
+
+
+def run_episodes(env, policy, config: EvalConfig, viewer, renderer, writer, hold: float):
+    """Play `config.episodes` episodes (evaluate's keys and stop rule); show every step
+    in the viewer (paced to control_dt of wall-clock time) or write it to the video.
+    Returns one record per finished episode (EvalResult's fields)."""
+    import jax
+
+    params = env.make_params(reset_noise=config.noise)
+    keys = jax.random.split(jax.random.key(config.seed), config.episodes)
+    reset = jax.jit(env.reset)
+    step = jax.jit(lambda policy, state: env.step(state, policy(state.obs)))
+    tolerance = config.tolerance_mm / 1000.0
+    dt = env.config.control_dt
+    target = jax.device_get((params.target_pos, params.target_quat))
+
+    def show(q: np.ndarray) -> np.ndarray | None:
+        if viewer is not None:
+            viewer.show(q, *target)
+            return None
+        frame = renderer.frame(q, *target)
+        writer.append(frame)
+        return frame
+
+    print("compiling the policy and the env step ...", flush=True)
+    jax.block_until_ready(step(policy, reset(keys[0], params)))
+
+    records = []
+    for key in keys:
+        if viewer is not None and not viewer.running:
+            break
+        state = reset(key, params)
+        show(np.asarray(state.q))
+        tick = time.perf_counter()
+        while True:
+            state = step(policy, state)
+            q, m, terminated, truncated, n = jax.device_get(
+                (state.q, state.metrics, state.terminated, state.truncated, state.step)
+            )
+            if viewer is not None:  # pace to the control period in wall-clock time
+                tick = max(tick + dt, time.perf_counter())  # resync if behind
+                time.sleep(max(0.0, tick - time.perf_counter()))
+            frame = show(q)
+            reached = tolerance > 0 and bool(np.all(m["position_error"] <= tolerance))
+            if reached or terminated or truncated:
+                break
+            if viewer is not None and not viewer.running:
+                return records
+        records.append(
+            {
+                "position_error_mm": 1000.0 * m["position_error"],
+                "orientation_error_deg": np.degrees(m["orientation_error"]),
+                "distance_mm": 1000.0 * float(m["distance"]),
+                "steps": int(n),
+                "reached": reached,
+                "collisions": int(m["collisions"]),
+                "episode_return": float(m["episode_return"]),
+            }
+        )
+        if viewer is not None:
+            time.sleep(hold)
+        else:
+            for _ in range(int(round(hold * writer.fps))):
+                writer.append(frame)
+    return records
+
+
+if __name__ == "__main__":
+    sys.exit(run_cli(main, PROG))
