@@ -9,10 +9,11 @@
 
 What `policy(obs)` computes is what `mara_mjx.ppo.make_policy` computes (the
 deterministic Gaussian mean): z = clip((obs - mean) / sqrt(var + 1e-8), -obs_clip,
-obs_clip) when the run normalised observations (else z = obs), then the actor's tanh MLP
-(linear output layer), plus obs[..., :6] (the current joint positions) when the run
-used `relative_actions`. The action is an absolute joint target (rad) for motor1..motor6;
-the env clips it to the joint limits (`policy(obs, clip=True)` does the same here).
+obs_clip) when the run normalised observations (else z = obs), z[..., hidden_obs] = 0,
+then the actor's tanh MLP (linear output layer), plus obs[..., :6] (the current joint
+positions) when the run used `relative_actions`. The action is an absolute joint target
+(rad) for motor1..motor6; the env clips it to the joint limits (`policy(obs, clip=True)`
+does the same here).
 
 File layout (`np.load(path)`; no pickles):
     layer_<i>/kernel   (in, out) float32, i = 0 .. len(hidden_sizes)   y = x @ kernel + bias
@@ -21,6 +22,7 @@ File layout (`np.load(path)`; no pickles):
     __meta__           JSON: format, env_name, env_config, observation_size, action_size,
                        hidden_sizes, activation, normalize_obs, obs_clip, obs_var_eps,
                        relative_actions (add obs[..., :action_size] to the MLP output),
+                       hidden_obs (indices set to 0 after normalisation),
                        observation_layout [{name, start, stop, units, description}],
                        action {joint_names, lower, upper, units, description},
                        source {checkpoint, update, env_steps}
@@ -130,6 +132,7 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
         "obs_clip": float(config.obs_clip),
         "obs_var_eps": OBS_VAR_EPS,
         "relative_actions": bool(config.relative_actions),
+        "hidden_obs": [int(i) for i in config.hidden_obs],
         "observation_layout": observation_layout(orientation),
         "action": {
             "joint_names": list(JOINTS),
@@ -219,6 +222,10 @@ class NumpyPolicy:
             clip_obs = float(self.meta["obs_clip"])
             x = (x - self.obs_mean) / np.sqrt(self.obs_var.astype(np.float64) + OBS_VAR_EPS)
             x = np.clip(x, -clip_obs, clip_obs)
+        hidden = self.meta.get("hidden_obs", [])
+        if hidden:
+            x = x.copy()
+            x[..., hidden] = 0.0
         for i, (kernel, bias) in enumerate(zip(self.kernels, self.biases, strict=True)):
             x = x @ kernel.astype(np.float64) + bias
             if i < len(self.kernels) - 1:

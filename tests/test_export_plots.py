@@ -38,7 +38,11 @@ def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bo
     """A run folder with one checkpoint of random (untrained) params; returns its path."""
     env = mara_mjx.make(env_name)
     config = PPOConfig(
-        hidden_sizes=(32, 16), normalize_obs=normalize, obs_clip=5.0, relative_actions=relative
+        hidden_sizes=(32, 16),
+        normalize_obs=normalize,
+        obs_clip=5.0,
+        relative_actions=relative,
+        hidden_obs=(13, 14, 15) if relative else (),  # MARAOrient's TCP velocity
     )
     network = make_network(config, env.action_size)
     key, init_key, noise_key, stats_key = jax.random.split(jax.random.key(seed), 4)
@@ -93,7 +97,7 @@ def test_export_matches_make_policy(tmp_path, env_name, normalize, relative):
     got = policy(obs)
     assert got.shape == (64, 6) and got.dtype == np.float32
     assert np.abs(expected).max() > 0.1  # not the near-zero init: the check has teeth
-    np.testing.assert_allclose(got, expected, atol=1e-5, rtol=0)
+    np.testing.assert_allclose(got, expected, atol=1e-5, rtol=1e-6)
     np.testing.assert_allclose(policy(obs[0]), expected[0], atol=1e-5, rtol=0)
 
     env = mara_mjx.make(env_name)

@@ -280,9 +280,10 @@ def test_gaussian_log_prob_and_entropy():
     np.testing.assert_allclose(gaussian_entropy(log_std), expected_entropy, rtol=1e-6)
 
 
-def test_relative_actions_and_log_std_floor():
+def test_relative_actions_log_std_floor_and_hidden_obs():
     """relative_actions adds the raw observation's first action_size entries (the joint
-    positions) to the actor's output; log_std_floor clamps the log-std from below."""
+    positions) to the actor's output; log_std_floor clamps the log-std from below;
+    hidden_obs entries do not change the output."""
     obs = jnp.arange(24.0).reshape(2, 12) / 10.0
     stats = RunningStats.create(12).replace(mean=jnp.full(12, 0.3), var=jnp.full(12, 4.0))
     outputs = {}
@@ -297,6 +298,18 @@ def test_relative_actions_and_log_std_floor():
     np.testing.assert_allclose(mean_rel, mean_abs + obs[:, :6], rtol=1e-6, atol=1e-6)
     np.testing.assert_array_equal(value_rel, value_abs)
     np.testing.assert_array_equal(log_std, jnp.full((2, 6), -3.0))
+    hidden = PPOConfig(hidden_obs=(3, 11))
+    network = make_network(hidden, 6)
+    params = network.init(jax.random.key(0), obs[0], obs[0])
+    changed = obs.at[:, 3].add(5.0).at[:, 11].add(-7.0)
+    np.testing.assert_array_equal(
+        forward(network, params, stats, changed, 10.0)[0],
+        forward(network, params, stats, obs, 10.0)[0],
+    )
+    assert not np.allclose(  # an entry that is seen does change the output
+        forward(network, params, stats, obs.at[:, 4].add(5.0), 10.0)[0],
+        forward(network, params, stats, obs, 10.0)[0],
+    )
     with pytest.raises(ValueError, match="log_std_floor"):
         PPOConfig(init_log_std=-2.0, log_std_floor=-1.0)
 

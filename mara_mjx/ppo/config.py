@@ -111,6 +111,9 @@ class PPOConfig(_ConfigMixin):
     """The Gaussian mean is the current joint positions (the observation's first entries)
     plus the actor's output, instead of the actor's output alone (baselines). The env's
     action is still absolute joint targets; only the policy's parametrisation changes."""
+    hidden_obs: tuple[int, ...] = ()
+    """Observation indices that neither network sees (set to 0 after normalisation), e.g.
+    9 10 11 for the TCP velocity of MARA/MARACollision (13 14 15 for the Orient tasks)."""
     normalize_obs: bool = False
     """Normalise observations by running mean and variance of the rollouts (Welford); the
     statistics are saved with the policy and applied by make_policy."""
@@ -176,6 +179,12 @@ class PPOConfig(_ConfigMixin):
         if self.log_std_floor > self.init_log_std:
             raise ValueError(
                 f"log_std_floor={self.log_std_floor} is above init_log_std={self.init_log_std}"
+            )
+        if not isinstance(self.hidden_obs, tuple) or not all(
+            _is_int(i) and i >= 0 for i in self.hidden_obs
+        ):
+            raise ValueError(
+                f"hidden_obs={self.hidden_obs!r} must be a tuple of observation indices >= 0"
             )
         for name in ("clip_value", "normalize_obs", "normalize_advantages", "relative_actions"):
             if not isinstance(getattr(self, name), bool):

@@ -8,7 +8,8 @@ deviation. The Gaussian mean is the action: joint targets (rad) that the env cli
 the joint limits, either the actor's output itself (`relative_actions=False`, baselines)
 or the current joint positions (the first `action_size` raw observation entries, which
 the MARA observation starts with) plus the actor's output (`relative_actions=True`, so
-that "stay" is the output 0). The log-std can be floored (`log_std_floor`).
+that "stay" is the output 0). The log-std can be floored (`log_std_floor`), and chosen
+observation entries hidden from both networks (`hidden_obs`).
 
     network = make_network(config, action_size)
     mean, log_std, value = forward(network, params, obs_stats, obs, config.obs_clip)
@@ -49,6 +50,7 @@ class ActorCritic(nn.Module):
     init_log_std: float = 0.0
     relative_actions: bool = False
     log_std_floor: float = -20.0
+    hidden_obs: tuple[int, ...] = ()
 
     @nn.compact
     def __call__(
@@ -56,6 +58,8 @@ class ActorCritic(nn.Module):
     ) -> tuple[jax.Array, jax.Array, jax.Array]:
         """obs (..., obs_size) normalised (and the raw obs when relative_actions) ->
         mean (..., A), log_std (..., A), value (...)."""
+        if self.hidden_obs:  # entries neither network sees (zero after normalisation)
+            obs = obs.at[..., jnp.asarray(self.hidden_obs)].set(0.0)
         mean = MLP(self.hidden_sizes, self.action_size, 0.01, name="actor")(obs)
         if self.relative_actions:
             if raw_obs is None:
@@ -78,6 +82,7 @@ def make_network(config: Any, action_size: int) -> ActorCritic:
         config.init_log_std,
         config.relative_actions,
         config.log_std_floor,
+        tuple(config.hidden_obs),
     )
 
 

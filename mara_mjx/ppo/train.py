@@ -133,6 +133,11 @@ def make_train(env: Any, config: PPOConfig, updates_per_call: int = 1) -> Traine
     optimizer = make_optimizer(config)
     lr_at_update = make_lr_schedule(config)
     obs_size = benv.observation_size
+    if any(i >= obs_size for i in config.hidden_obs):
+        raise ValueError(
+            f"hidden_obs={config.hidden_obs} names entries beyond the observation of "
+            f"{obs_size} values (valid indices 0..{obs_size - 1})"
+        )
 
     def stats_in_use(state: RunnerState) -> RunningStats | None:
         return state.obs_stats if config.normalize_obs else None
