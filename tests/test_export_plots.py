@@ -98,7 +98,7 @@ def test_export_matches_make_policy(tmp_path, env_name, normalize, relative):
     assert got.shape == (64, 6) and got.dtype == np.float32
     assert np.abs(expected).max() > 0.1  # not the near-zero init: the check has teeth
     np.testing.assert_allclose(got, expected, atol=1e-5, rtol=1e-6)
-    np.testing.assert_allclose(policy(obs[0]), expected[0], atol=1e-5, rtol=0)
+    np.testing.assert_allclose(policy(obs[0]), expected[0], atol=1e-5, rtol=1e-6)
 
     env = mara_mjx.make(env_name)
     np.testing.assert_array_equal(policy.joint_lower, env.joint_lower.astype(np.float32))
