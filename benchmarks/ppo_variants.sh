@@ -7,6 +7,9 @@
 #   floor      --log_std_floor -4.6 (sigma >= 0.01 rad)
 #   ent        --ent_coef 0.005
 #   relfloor   both relative actions and the floor
+#   novel      --hidden_obs 13 14 15 (the networks do not see the TCP velocity)
+#   relnovel   relfloor and novel
+#   relfloorg9 relfloor with --gamma 0.9
 # Then benchmarks/hold_trace.py on every run: per-step distance of one deterministic
 # episode to the horizon and the paper's evaluation run to the horizon.
 # Usage: bash benchmarks/ppo_variants.sh OUT_DIR [NAME ...]
@@ -21,6 +24,9 @@ declare -A extra=(
   [floor]="--log_std_floor -4.6"
   [ent]="--ent_coef 0.005"
   [relfloor]="--relative_actions true --log_std_floor -4.6"
+  [novel]="--hidden_obs 13 14 15"
+  [relnovel]="--relative_actions true --log_std_floor -4.6 --hidden_obs 13 14 15"
+  [relfloorg9]="--relative_actions true --log_std_floor -4.6 --gamma 0.9"
 )
 for name in $names; do
   # shellcheck disable=SC2086
