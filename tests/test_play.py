@@ -28,9 +28,10 @@ from PIL import Image
 import mara_mjx
 from mara_mjx import play, render
 from mara_mjx.gym import MaraGymEnv, MaraVectorEnv, gym_id
-from mara_mjx.ppo import ActorCritic, PPOConfig, RunningStats
+from mara_mjx.ppo import PPOConfig, RunningStats
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo.flags import run_cli
+from mara_mjx.ppo.networks import make_network
 
 REPO = Path(__file__).resolve().parents[1]
 W, H = 64, 48
@@ -55,9 +56,9 @@ def run_dir(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("play") / "run"
     env = mara_mjx.make("MARA")
     config = PPOConfig(hidden_sizes=(16, 16))
-    network = ActorCritic(env.action_size, config.hidden_sizes, config.init_log_std)
+    network = make_network(config, env.action_size)
     obs = jax.ShapeDtypeStruct((env.observation_size,), jnp.float32)
-    shapes = jax.eval_shape(network.init, jax.random.key(0), obs)
+    shapes = jax.eval_shape(network.init, jax.random.key(0), obs, obs)  # as checkpoint.py
     # Weights of order 1 (not the 0.01-gain head) so that the arm moves; numpy, so that
     # nothing compiles here.
     rng = np.random.default_rng(0)
