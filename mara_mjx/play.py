@@ -67,6 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "-r",
         "--real-speed",
+        "--real_speed",  # gym-gazebo2's spelling
         dest="env.driver",
         action="store_const",
         const="real",
