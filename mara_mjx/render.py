@@ -187,10 +187,18 @@ class ArmRenderer:
         self.camera = self._camera(camera)
         self.data = mujoco.MjData(self.model)
         self.backend = gl_backend()
+        self._gl = self._context = None
         self._gl = _gl_context(self.backend, self.width, self.height)
         self._scene = mujoco.MjvScene(self.model, maxgeom=1000)
         self._option = mujoco.MjvOption()
-        self._context = mujoco.MjrContext(self.model, mujoco.mjtFontScale.mjFONTSCALE_150)
+        try:
+            self._context = mujoco.MjrContext(self.model, mujoco.mjtFontScale.mjFONTSCALE_150)
+        except mujoco.FatalError as e:  # e.g. glfw without a display: no GL loaded
+            self._gl.free()
+            raise RenderError(
+                f"MuJoCo cannot render with MUJOCO_GL={self.backend}: {e}. Try MUJOCO_GL="
+                + " or MUJOCO_GL=".join(OFFSCREEN_BACKENDS)
+            ) from e
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
         self._rect = mujoco.MjrRect(0, 0, self.width, self.height)
         # Free the context before the GL library shuts down (egl registers its own

@@ -43,9 +43,10 @@ pytestmark = pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")
 
 @pytest.fixture(scope="module")
 def gl() -> str:
-    """The offscreen GL backend; skips the test where none works."""
+    """The offscreen GL backend; skips the test where none renders."""
     try:
-        return render.gl_backend()
+        with render.ArmRenderer(8, 8):
+            return render.gl_backend()
     except render.RenderError as e:
         pytest.skip(f"no offscreen OpenGL backend on this machine: {e}")
 
