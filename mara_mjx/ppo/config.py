@@ -301,17 +301,22 @@ def _check_range(name: str, value: Any, low: float, high: float, low_open: bool 
 
 
 PRESETS: dict[str, PPOConfig] = {
-    # For thousands of environments on one GPU. 2048 x 32 and reward_scale 0.01 were the
-    # fastest to 1 mm of the shapes and scales measured on an H200
-    # (benchmarks/results/ppo_sweep.md); see benchmarks/NOTES.md for what is not solved yet.
+    # For thousands of environments on one GPU (benchmarks/NOTES.md, sections 4 and 6).
+    # 2048 x 32 and reward_scale 0.01 were the fastest to 1 mm of the shapes and scales
+    # measured on an H200 (benchmarks/results/ppo_sweep.md). relative_actions, the log-std
+    # floor (sigma >= 0.01 rad) and gamma 0.9 are what made the learned policy stay at the
+    # target instead of cycling around it (benchmarks/results/ppo_variants/).
     "default": PPOConfig(
         num_envs=2048,
         num_steps=32,
         total_timesteps=50_000_000,
         num_minibatches=32,
         update_epochs=4,
+        gamma=0.9,
         normalize_obs=True,
         reward_scale=0.01,
+        relative_actions=True,
+        log_std_floor=-4.6,
     ),
     # The paper's appendix: baselines ppo2, one environment (spec section 7).
     "paper": PPOConfig(),
