@@ -46,7 +46,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import mara_mjx
+from mara_mjx import bench_limit, bench_ppo
 from mara_mjx.envs.batched import BatchedEnv
+from mara_mjx.ppo import PRESETS
+from mara_mjx.ppo.flags import configure_jax
 
 DEFAULT_OUT = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
 
@@ -82,8 +85,10 @@ def _peak_memory() -> int | None:
     return stats.get("peak_bytes_in_use")
 
 
-def make_rollout(benv: BatchedEnv, steps: int):
-    """A jitted function running `steps` batched steps with uniform random joint targets."""
+def make_step_body(benv: BatchedEnv):
+    """One batched step with uniform random joint targets, as a `lax.scan` body:
+    ((state, key), _) -> ((state, key), fraction of envs that collided). The env study
+    times it; the limit study cost-analyses it."""
     lower, upper = jnp.asarray(benv.env.joint_lower), jnp.asarray(benv.env.joint_upper)
 
     def body(carry, _):
@@ -92,6 +97,13 @@ def make_rollout(benv: BatchedEnv, steps: int):
         action = jax.random.uniform(action_key, (benv.num_envs, 6), minval=lower, maxval=upper)
         state = benv.step(state, action)
         return (state, key), state.metrics["collided"].mean()
+
+    return body
+
+
+def make_rollout(benv: BatchedEnv, steps: int):
+    """A jitted function running `steps` batched steps with uniform random joint targets."""
+    body = make_step_body(benv)
 
     @jax.jit
     def rollout(state, key):
@@ -266,7 +278,13 @@ def peers_study(args: argparse.Namespace) -> list[dict[str, Any]]:
     return records
 
 
-STUDIES = {"env": env_study, "peers": peers_study}
+STUDIES = {
+    "env": env_study,
+    "peers": peers_study,
+    "train": bench_ppo.train_study,
+    "brax": bench_ppo.brax_study,
+    "limit": bench_limit.limit_study,
+}
 
 
 def _fmt_m(x: float | None) -> str:
@@ -274,8 +292,10 @@ def _fmt_m(x: float | None) -> str:
     return "" if x is None else f"{x / 1e6:.2f} M"
 
 
-# Per study: title, markdown columns (header, record -> text), plot series (record ->
-# label) and line style (record -> style). Every study plots env steps/s vs env count.
+# Per study: title, markdown columns (header, record -> text), optional notes (records ->
+# markdown lines under the table), and either plot(records, title, path) or, for the
+# default plot of env steps/s vs env count, series (record -> label) and style (record
+# -> line style).
 STUDY_TABLES: dict[str, dict[str, Any]] = {
     "env": {
         "title": "env study: batched step throughput",
@@ -306,18 +326,23 @@ STUDY_TABLES: dict[str, dict[str, Any]] = {
         "series": lambda r: r["impl"],
         "style": lambda r: "-" if r["impl"].startswith("mjx") else "--",
     },
+    "train": bench_ppo.TRAIN_TABLE,
+    "brax": bench_ppo.BRAX_TABLE,
+    "limit": bench_limit.LIMIT_TABLE,
 }
 
 
 def write_results(
     study: str, records: list[dict[str, Any]], out: Path, meta: dict[str, Any]
 ) -> list[Path]:
-    """Write `<study>.json` (meta + records), `<study>.md` (table) and `<study>.png`
-    (env steps/s vs environments, log-log) into `out`. Returns the written paths."""
+    """Write `<study>.json` (meta + records; NaN and infinities as null, so strict JSON),
+    `<study>.md` (table and notes) and `<study>.png` (the study's plot; by default env
+    steps/s vs environments, log-log) into `out`. Returns the written paths."""
     spec = STUDY_TABLES[study]
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / f"{study}.{ext}" for ext in ("json", "md", "png")]
-    paths[0].write_text(json.dumps({**meta, "records": records}, indent=2))
+    data = _json_safe({**meta, "records": records})
+    paths[0].write_text(json.dumps(data, indent=2, allow_nan=False))
     headers = [h for h, _ in spec["columns"]]
     lines = [
         f"# {spec['title']}",
@@ -332,8 +357,34 @@ def write_results(
     ]
     for r in records:
         lines.append("| " + " | ".join(f(r) for _, f in spec["columns"]) + " |")
+    if "notes" in spec:
+        lines += ["", *spec["notes"](records)]
     paths[1].write_text("\n".join(lines) + "\n")
+    title = f"{study}: {meta['device']['device_kind']}"
+    if "plot" in spec:
+        spec["plot"](records, title, paths[2])
+    else:
+        plot_throughput(records, spec, title, paths[2])
+    return paths
 
+
+def _json_safe(x: Any) -> Any:
+    """x with non-finite floats replaced by None (recursively through dicts and lists)."""
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, float | np.floating):
+        return float(x) if np.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
+
+
+def plot_throughput(
+    records: list[dict[str, Any]], spec: dict[str, Any], title: str, path: Path
+) -> None:
+    """env steps/s vs environments (log-log), one line per spec["series"] label."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -353,13 +404,12 @@ def write_results(
     ax.set_yscale("log")
     ax.set_xlabel("environments")
     ax.set_ylabel("env steps / s")
-    ax.set_title(f"{study}: {meta['device']['device_kind']}")
+    ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(paths[2], dpi=120)
+    fig.savefig(path, dpi=120)
     plt.close(fig)
-    return paths
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
@@ -397,6 +447,46 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         action="store_true",
         help="peers: time the C rollout only (the MJX real-driver compile takes ~35 s on CPU)",
     )
+    p.add_argument(
+        "--matmul-size",
+        type=int,
+        default=8192,
+        help="limit: n of the n x n matmuls that measure peak FLOP/s",
+    )
+    p.add_argument(
+        "--copy-size",
+        type=int,
+        default=2**28,
+        help="limit: float32 elements of the x + 1 that measures memory bandwidth",
+    )
+    ppo = p.add_argument_group("train and brax studies (PPO)")
+    ppo.add_argument("--preset", choices=sorted(PRESETS), default="default")
+    ppo.add_argument("--total", type=int, help="env steps per run (default: the preset's)")
+    for name in ("num-envs", "num-steps", "num-minibatches", "update-epochs", "seed"):
+        ppo.add_argument(f"--{name}", type=int, help="override of the preset's field")
+    ppo.add_argument(
+        "--updates-per-call",
+        type=int,
+        default=16,
+        help="PPO updates per jitted call = per curve point (brax: per epoch)",
+    )
+    ppo.add_argument(
+        "--episode-length", type=int, default=1024, help="horizon of training episodes"
+    )
+    ppo.add_argument("--score-episodes", type=int, default=10, help="scorer: episodes")
+    ppo.add_argument("--score-steps", type=int, default=100, help="scorer: steps per episode")
+    ppo.add_argument(
+        "--score-last", type=int, default=10, help="scorer: error averaged over the last steps"
+    )
+    ppo.add_argument(
+        "--eval-episodes", type=int, default=10, help="train: episodes of the final evaluations"
+    )
+    p.add_argument(
+        "--deterministic",
+        action="store_true",
+        help="deterministic XLA GPU ops (reproducible, about half the PPO speed); off by "
+        "default, for speed; matmuls are float32 at HIGHEST precision either way",
+    )
     p.add_argument("--steps", type=int, default=100, help="env steps per timed call")
     p.add_argument("--repeats", type=int, default=5, help="timed calls after the first")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="results folder")
@@ -411,9 +501,36 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         or args.repeats < 1
     ):
         p.error("--sizes, --real-sizes, --steps and --repeats must be positive")
+    positive = [
+        "updates_per_call",
+        "episode_length",
+        "score_episodes",
+        "score_steps",
+        "score_last",
+        "eval_episodes",
+        "matmul_size",
+        "copy_size",
+    ]
+    bad = [n for n in positive if getattr(args, n) < 1]
+    if bad:
+        p.error(f"{', '.join('--' + n.replace('_', '-') for n in bad)} must be positive")
+    if args.score_last > args.score_steps:
+        p.error("--score-last must not exceed --score-steps")
     if args.quick:
         args.sizes, args.real_sizes, args.peer_sizes = [4], [4], [4]
         args.steps, args.repeats = 4, 1
+        args.matmul_size, args.copy_size = 256, 2**20
+        args.total, args.num_envs, args.num_steps = 64, 4, 8
+        args.num_minibatches, args.update_epochs, args.updates_per_call = 2, 2, 1
+        args.episode_length, args.eval_episodes = 16, 2
+        args.score_episodes, args.score_steps, args.score_last = 2, 8, 4
+    if args.study in ("train", "brax"):
+        try:
+            config = bench_ppo.ppo_config(args)
+            if args.study == "brax":
+                bench_ppo.brax_kwargs(config, args.episode_length)
+        except ValueError as e:
+            p.error(str(e))
     try:
         args.out.mkdir(parents=True, exist_ok=True)
         probe = args.out / ".write_test"
@@ -424,19 +541,39 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return args
 
 
+def configure(deterministic: bool) -> dict[str, str]:
+    """Before the backend starts: float32 matmuls at HIGHEST precision (unless
+    JAX_DEFAULT_MATMUL_PRECISION says otherwise) and, unless `deterministic` or XLA_FLAGS
+    says otherwise, XLA's faster non-deterministic GPU ops (the training CLI's default is
+    the reverse; `configure_jax` is shared). Returns what is in effect, for the JSON."""
+    import os
+
+    flags = os.environ.get("XLA_FLAGS", "")
+    if not deterministic and "xla_gpu_deterministic_ops" not in flags:
+        os.environ["XLA_FLAGS"] = (flags + " --xla_gpu_deterministic_ops=false").strip()
+    configure_jax()
+    return {
+        "XLA_FLAGS": os.environ.get("XLA_FLAGS", ""),
+        "matmul_precision": str(jax.config.jax_default_matmul_precision),
+    }
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     args = parse_args(argv)
+    settings = configure(args.deterministic)
     meta = {
         "study": args.study,
         "command": "python -m mara_mjx.benchmark "
         + " ".join(sys.argv[1:] if argv is None else argv),
         "versions": versions(),
         "device": device_info(),
+        "settings": settings,
         "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
         "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
     records = STUDIES[args.study](args)
     paths = write_results(args.study, records, args.out, meta)
+    print(paths[1].read_text())
     print("wrote " + ", ".join(str(p) for p in paths))
 
 

@@ -1,9 +1,16 @@
-"""The benchmark CLI (env and peers studies, as subprocesses) and the brax adapter."""
+"""The benchmark CLI (every study with --quick, as subprocesses) and the brax adapter.
+
+All CLI runs start together when the module's first test asks for them, so that their
+compiles overlap each other and the in-process tests. `train` and then `brax` run in one
+shell with a shared persistent compilation cache, so brax's run of our PPO reuses the
+train study's compiled programs.
+"""
 
 from __future__ import annotations
 
 import json
 import os
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -16,6 +23,7 @@ from brax.envs.base import State
 from brax.envs.wrappers.training import wrap
 
 import mara_mjx
+from mara_mjx.bench_ppo import CompileClock, Run
 from mara_mjx.brax_env import METRICS, NEVER, BraxMaraEnv, make_brax_env
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -26,8 +34,8 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "mara_mjx.benchmark", *args]
 
 
-def _popen(args: list[str]) -> subprocess.Popen:
-    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+def _popen(args: list[str], **env: str) -> subprocess.Popen:
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", **env}
     return subprocess.Popen(
         args, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
     )
@@ -35,25 +43,41 @@ def _popen(args: list[str]) -> subprocess.Popen:
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """Start both quick studies at once (they overlap the in-process brax tests)."""
+    """Start every quick study at once (they overlap the in-process brax tests)."""
     out = tmp_path_factory.mktemp("bench")
+    cache = tmp_path_factory.mktemp("jax_cache")
+    tiny = ["--quick", "--tasks", "MARA", "--out", str(out)]
+    ppo = shlex.join(_cli("train", *tiny)) + " && " + shlex.join(_cli("brax", *tiny))
+    ppo_proc = _popen(
+        ["sh", "-c", ppo],
+        JAX_COMPILATION_CACHE_DIR=str(cache),
+        JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
+        JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0",
+    )
     procs = {
-        "env": _popen(
-            _cli("env", "--quick", "--tasks", "MARA", "--drivers", "train", "--out", str(out))
-        ),
+        "env": _popen(_cli("env", *tiny, "--drivers", "train")),
         "peers": _popen(_cli("peers", "--quick", "--skip-mjx", "--out", str(out))),
+        "limit": _popen(_cli("limit", *tiny, "--drivers", "train")),
+        "train": ppo_proc,
+        "brax": ppo_proc,
     }
-    return out, procs
+    return out, procs, {}
 
 
 def _finish(runs, study: str) -> dict:
-    out, procs = runs
+    """Wait for the study's process; check its files; its JSON (strict: no NaN)."""
+    out, procs, texts = runs
     proc = procs[study]
-    text, _ = proc.communicate(timeout=240)
-    assert proc.returncode == 0, text
+    if proc not in texts:
+        texts[proc] = proc.communicate(timeout=600)[0]
+    assert proc.returncode == 0, texts[proc][-6000:]
     for ext in ("json", "md", "png"):
         assert (out / f"{study}.{ext}").is_file()
-    return json.loads((out / f"{study}.json").read_text())
+
+    def no_constant(name):
+        raise AssertionError(f"{study}.json holds {name}")
+
+    return json.loads((out / f"{study}.json").read_text(), parse_constant=no_constant)
 
 
 # ----------------------------------------------------------------- brax adapter
@@ -138,12 +162,108 @@ def test_peers_study_quick(runs):
     assert "mjx_over_c" in rec
 
 
+CURVE_KEYS = {"t_s", "t_run_s", "compile_s", "env_steps", "settled_mm", "settled_axis_mm"}
+
+
+def _check_run(rec: dict, impl: str) -> None:
+    """A PPO run record of the quick settings: 2 calls of 1 update of 4 envs x 8 steps."""
+    assert rec["task"] == "MARA" and rec["impl"].startswith(impl)
+    assert rec["env_steps"] == 64 and rec["calls"] == 2 and rec["num_envs"] == 4
+    assert rec["env_steps_per_s"] > 0 and rec["compile_s"] > 0 and rec["wall_s"] > 0
+    assert [p["env_steps"] for p in rec["curve"]] == [0, 32, 64]
+    for p in rec["curve"]:
+        assert CURVE_KEYS <= set(p) and 0 <= p["t_run_s"] <= p["t_s"]
+        assert p["settled_mm"] > 0 and len(p["settled_axis_mm"]) == 3
+    for name in ("settled_to_5mm", "settled_to_1mm"):
+        assert {f"{name}_s", f"{name}_wall_s", f"{name}_env_steps"} <= set(rec)
+    assert rec["final_settled_mm"] == rec["curve"][-1]["settled_mm"]
+    assert rec["score"] == {"episodes": 2, "steps": 8, "last": 4, "noise": 0.02, "seed": 0}
+
+
+def test_train_study_quick(runs):
+    data = _finish(runs, "train")
+    assert META_KEYS <= set(data) and data["study"] == "train"
+    assert data["settings"]["matmul_precision"] == "highest"
+    (rec,) = data["records"]
+    _check_run(rec, "ours")
+    assert rec["preset"] == "default" and rec["ppo"]["num_envs"] == 4
+    assert [p.get("det_error_mm") is not None for p in rec["curve"]] == [False, True, True]
+    assert {"det_error_to_5mm_s", "det_error_to_1mm_s", "final_det_error_mm"} <= set(rec)
+    for name, tolerance in (("eval_stop_5mm", 5.0), ("eval_horizon", 0.0)):
+        ev = rec[name]
+        assert ev["tolerance_mm"] == tolerance and ev["episodes"] == 2
+        assert ev["mean_axis_error_mm"] > 0 and len(ev["position_error_mm"]) == 3
+    assert rec["eval_horizon"]["steps"] == 16  # the quick horizon
+
+
+def test_brax_study_quick(runs):
+    data = _finish(runs, "brax")
+    assert META_KEYS <= set(data) and data["study"] == "brax"
+    ours, theirs = data["records"]
+    _check_run(ours, "ours")
+    _check_run(theirs, "brax")
+    assert {"brax_over_ours_time_to_5mm", "ours_over_brax_env_steps_per_s"} <= set(ours)
+    assert ours["ours_over_brax_env_steps_per_s"] == pytest.approx(
+        ours["env_steps_per_s"] / theirs["env_steps_per_s"]
+    )
+    kw = theirs["brax_kwargs"]
+    assert (kw["num_envs"], kw["unroll_length"], kw["batch_size"]) == (4, 8, 2)
+    assert (kw["num_minibatches"], kw["num_updates_per_batch"]) == (2, 2)
+    assert kw["entropy_cost"] == 0 and kw["reward_scaling"] == 0.01
+    assert kw["normalize_observations"] and kw["episode_length"] == 16
+
+
+def test_limit_study_quick(runs):
+    data = _finish(runs, "limit")
+    assert META_KEYS <= set(data) and data["study"] == "limit"
+    (rec,) = data["records"]
+    assert (rec["task"], rec["driver"], rec["num_envs"]) == ("MARA", "train", 4)
+    positive = ("flops_per_env_step", "bytes_per_env_step", "f32_matmul_flops_per_s")
+    positive += ("bf16_matmul_flops_per_s", "bytes_per_s", "env_steps_per_s")
+    for key in positive:
+        assert rec[key] > 0, key
+    bound = min(
+        rec["f32_matmul_flops_per_s"] / rec["flops_per_env_step"],
+        rec["bytes_per_s"] / rec["bytes_per_env_step"],
+    )
+    assert rec["bound_env_steps_per_s"] == pytest.approx(bound)
+    assert rec["limited_by"] in ("compute", "memory")
+    assert rec["fraction_of_bound"] == pytest.approx(rec["env_steps_per_s"] / bound)
+
+
+def test_compile_clock_counts_overlapping_spans_once():
+    with CompileClock() as clock:
+        t0 = clock.start
+        for start, end in ((1, 3), (2, 4), (6, 7), (-5, 0.5)):  # nested, apart, before
+            clock._listen("/jax/core/compile/backend_compile_duration", t0 + start, t0 + end)
+        clock._listen("/jax/other/event", t0 + 8, t0 + 9)
+        assert clock.compile_s(t0 + 10) == pytest.approx(3 + 1 + 0.5)
+        assert clock.compile_s(t0 + 2.5) == pytest.approx(0.5 + 1.5)
+
+
+def test_run_summary_subtracts_one_time_compile_only():
+    run = Run("test", "MARA")
+    times = [(1.0, 1.0), (5.0, 4.0), (6.0, 4.5), (7.0, 4.5)]  # (t_s, compile so far)
+    errors = [None, 8.0, 3.0, 0.5]
+    for i, ((t, c), e) in enumerate(zip(times, errors, strict=True)):
+        run.curve.append({"t_s": t, "compile_s": c, "env_steps": 100 * i, "settled_mm": e})
+        run.snapshots.append(None)
+    out = run.summary()
+    assert [p["t_run_s"] for p in out["curve"]] == [0.0, 1.0, 2.0, 3.0]
+    assert out["compile_s"] == 4.0 and out["later_compile_s"] == 0.5
+    assert out["env_steps_per_s"] == pytest.approx(200 / 2.0)  # from the end of call 1
+    assert out["settled_to_5mm_s"] == 2.0 and out["settled_to_5mm_wall_s"] == 6.0
+    assert out["settled_to_1mm_env_steps"] == 300 and out["best_settled_mm"] == 0.5
+
+
 @pytest.mark.parametrize(
     "args, message",
     [
         (["nostudy"], "invalid choice"),
         (["env", "--tasks", "NoSuchTask"], "unknown task"),
         (["env", "--out", "/proc/forbidden"], "not writable"),
+        (["brax", "--num-envs", "6"], "divisible by num_minibatches"),
+        (["train", "--num-minibatches", "7"], "does not divide"),
     ],
 )
 def test_bad_input_gives_clear_error(args, message):
