@@ -200,8 +200,11 @@ def main(argv: list[str] | None = None) -> int:
         env = mara_mjx.make(plan.env_name, **plan.env_overrides)
     except ValueError as e:
         raise UserError(f"cannot build env {plan.env_name}: {e}") from e
+    try:  # cheap (nothing is compiled yet): device and batch-divisibility errors first
+        trainer = make_train(env, plan.ppo, plan.run.updates_per_call, plan.run.devices)
+    except ValueError as e:
+        raise UserError(str(e)) from e
     prepare_out(plan)
-    trainer = make_train(env, plan.ppo, plan.run.updates_per_call)
 
     progress: dict[str, Any] = {"update": 0, "env_steps": 0, "time_s": 0.0, "milestones": {}}
     state = None

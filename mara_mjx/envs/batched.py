@@ -15,6 +15,10 @@ measured by `benchmarks/profile_step.py` (see benchmarks/NOTES.md):
   * "cond": run the resets under `lax.cond(any(done))`. The tasks truncate all
     environments together, so the branch is rarely taken, but on GPU XLA reads the
     predicate back to the host every step, which stalls the pipeline.
+
+Devices: `devices=None` (default) spreads the environments over every device
+(`mara_mjx.sharding`): the state is sharded along its leading (N,) axis, so num_envs
+must be a multiple of the device count; `devices=1` keeps everything on one device.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from mara_mjx import sharding
 from mara_mjx.envs.base import EnvParams, EnvState  # noqa: F401
 
 
@@ -51,9 +56,13 @@ class BatchedEnv:
 
     RESET_STRATEGIES = ("select", "cond")
 
-    def __init__(self, env, num_envs: int, reset_strategy: str = "select"):
+    def __init__(
+        self, env, num_envs: int, reset_strategy: str = "select", devices: int | None = None
+    ):
         if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+        self.mesh = sharding.make_mesh(devices)
+        sharding.check_divisible("num_envs", num_envs, self.mesh)
         if reset_strategy not in self.RESET_STRATEGIES:
             raise ValueError(
                 f"reset_strategy={reset_strategy!r} is not valid; choose one of "
@@ -80,7 +89,7 @@ class BatchedEnv:
         params = self._batch_params(params)
         s = self._reset(keys, params)
         zeros = jnp.zeros(self.num_envs)
-        return BatchedState(
+        state = BatchedState(
             env_state=s,
             obs=s.obs,
             reward=s.reward,
@@ -92,6 +101,7 @@ class BatchedEnv:
             episode_collisions=zeros,
             metrics=s.metrics,
         )
+        return sharding.constrain(state, self.mesh)
 
     def step(self, state: BatchedState, action: jax.Array) -> BatchedState:
         """Step all environments with `action` (N, action_size); auto-reset ended ones."""
@@ -116,7 +126,7 @@ class BatchedEnv:
             else:
                 new = reset_done(s)
         m = s.metrics
-        return BatchedState(
+        state = BatchedState(
             env_state=new,
             obs=new.obs,
             reward=s.reward,
@@ -128,6 +138,7 @@ class BatchedEnv:
             episode_collisions=jnp.where(done, m["collisions"], 0.0),
             metrics=m,
         )
+        return sharding.constrain(state, self.mesh)
 
     def _batch_params(self, params):
         """Broadcast unbatched params to (N, ...); check batched ones have N rows."""

@@ -218,6 +218,10 @@ class RunConfig(_ConfigMixin):
     updates_per_call: int = 10
     """PPO updates per jitted call (a lax.scan on device); the host logs all of them after
     each call, so wall-clock columns have this granularity."""
+    devices: int = 0
+    """Devices to spread the environments and the batch over (0 = all; see
+    mara_mjx.sharding). num_envs and the minibatch size must be multiples of it; the
+    results match one device up to floating-point reduction order."""
     progress: bool = True
     """Show a progress bar (tqdm, on stderr)."""
     tensorboard: bool = True
@@ -233,6 +237,7 @@ class RunConfig(_ConfigMixin):
         _check_int("checkpoint_every", self.checkpoint_every, minimum=1)
         _check_int("keep_checkpoints", self.keep_checkpoints, minimum=1)
         _check_int("updates_per_call", self.updates_per_call, minimum=1)
+        _check_int("devices", self.devices, minimum=0)
         for name in ("progress", "tensorboard", "evaluate", "plots"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")

@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from mara_mjx import sharding
 from mara_mjx.envs.batched import BatchedEnv, BatchedState
 from mara_mjx.ppo.config import PPOConfig
 from mara_mjx.ppo.losses import gae, ppo_loss
@@ -126,9 +127,18 @@ def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
     )
 
 
-def make_train(env: Any, config: PPOConfig, updates_per_call: int = 1) -> Trainer:
-    """PPO on `config.num_envs` copies of `env` (any env BatchedEnv can wrap)."""
-    benv = BatchedEnv(env, config.num_envs)
+def make_train(
+    env: Any, config: PPOConfig, updates_per_call: int = 1, devices: int | None = None
+) -> Trainer:
+    """PPO on `config.num_envs` copies of `env` (any env BatchedEnv can wrap), over
+    `devices` devices (None or 0: all; see mara_mjx.sharding): environments, rollout and
+    minibatches sharded along the env axis, parameters replicated, gradients averaged by
+    the all-reduce of the minibatch mean."""
+    benv = BatchedEnv(env, config.num_envs, devices=devices)
+    mesh = benv.mesh
+    sharding.check_divisible(
+        "minibatch size (num_envs * num_steps / num_minibatches)", config.minibatch_size, mesh
+    )
     network = make_network(config, benv.action_size)
     optimizer = make_optimizer(config)
     lr_at_update = make_lr_schedule(config)
@@ -149,6 +159,7 @@ def make_train(env: Any, config: PPOConfig, updates_per_call: int = 1) -> Traine
         key, net_key, env_key = jax.random.split(key, 3)
         obs = jnp.zeros((obs_size,), jnp.float32)
         params = network.init(net_key, obs, obs)
+        params = sharding.replicate(params, mesh)
         return RunnerState(
             params=params,
             opt_state=optimizer.init(params),
@@ -192,7 +203,7 @@ def make_train(env: Any, config: PPOConfig, updates_per_call: int = 1) -> Traine
             step, (env_state, key), jnp.arange(config.num_steps + 1)
         )
         probe_metrics = jax.tree.map(lambda x: x[-1], traj.metrics)
-        traj = jax.tree.map(lambda x: x[:-1], traj)
+        traj = sharding.constrain(jax.tree.map(lambda x: x[:-1], traj), mesh, axis=1)
         return env_state, traj, probe_metrics
 
     # ---------------------------------------------------------------------- SGD
@@ -231,6 +242,7 @@ def make_train(env: Any, config: PPOConfig, updates_per_call: int = 1) -> Traine
                 ),
                 batch,
             )
+            minibatches = sharding.constrain(minibatches, mesh, axis=1)
             return jax.lax.scan(minibatch_step, carry, minibatches)
 
         keys = jax.random.split(key, config.update_epochs)
