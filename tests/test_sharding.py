@@ -91,3 +91,18 @@ def test_device_count_validation():
     for bad in (-1, 1.5, True):
         with pytest.raises(ValueError, match="devices must be an int"):
             sharding.device_count(bad)
+
+
+def test_scaling_study_helpers():
+    from mara_mjx.bench_scaling import add_efficiency, device_counts
+
+    assert device_counts(None)[0] == 1 and device_counts([1]) == [1]
+    with pytest.raises(ValueError, match="not available"):
+        device_counts([sharding.device_count() + 1])
+    records = [
+        {"part": "env", "scaling": "weak", "devices": 1, "env_steps_per_s": 10.0},
+        {"part": "env", "scaling": "weak", "devices": 2, "env_steps_per_s": 18.0},
+        {"part": "ppo", "scaling": "strong", "devices": 4, "env_steps_per_s": 20.0},
+    ]
+    add_efficiency(records)
+    assert [r["efficiency"] for r in records] == [1.0, 0.9, None]

@@ -65,6 +65,11 @@ def state_to_arrays(state: Any) -> dict[str, np.ndarray]:
     arrays = {}
     for path, leaf in leaves:
         value = jax.random.key_data(leaf) if _is_key(leaf) else leaf
+        if isinstance(value, jax.Array) and not value.is_fully_addressable:
+            # sharded over several hosts (jax.distributed): every process gets it all
+            from jax.experimental import multihost_utils
+
+            value = multihost_utils.process_allgather(value, tiled=True)
         arrays[leaf_name(path)] = np.asarray(jax.device_get(value))
     return arrays
 

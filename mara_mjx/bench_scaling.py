@@ -1,0 +1,167 @@
+"""The `scaling` study of `python -m mara_mjx.benchmark`: throughput against devices.
+
+For every device count n in 1, 2, 4, ... up to the devices present (`--device-counts`
+to choose), on the first of `--tasks` (train driver):
+
+env   the batched env step (`BatchedEnv(..., devices=n)`, the env study's random-action
+      `lax.scan`), weak scaling: `--scaling-envs` environments *per device*, so the
+      global batch grows with n. Compile time apart; steady state = median of
+      `--repeats` calls.
+ppo   our PPO (`make_train(..., devices=n)`, the default preset), weak scaling: the
+      default 2048 envs x 32 steps *per device* (global num_envs = 2048 n, minibatch
+      count unchanged, so minibatches grow with n), and strong scaling: the default
+      global batch (2048 envs) split over n devices. env steps/s of `Trainer.run`
+      (`--updates-per-call` updates per call), steady state after a compile call.
+
+Scaling efficiency of n devices = rate(n) / (n rate(1)) for weak scaling, and the same
+formula for strong scaling (the ideal is n times faster on the same batch). Sharding is
+`mara_mjx.sharding`: environments and minibatches along one mesh axis, parameters
+replicated, gradients all-reduced by XLA.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from typing import Any
+
+import jax
+
+import mara_mjx
+from mara_mjx.envs.batched import BatchedEnv
+
+SCALING_TABLE = {
+    "columns": [
+        ("part", "part"),
+        ("scaling", "scaling"),
+        ("devices", "devices"),
+        ("num_envs", "envs (global)"),
+        ("compile_s", "compile s"),
+        ("env_steps_per_s", "env steps/s"),
+        ("efficiency", "efficiency"),
+    ],
+}
+
+
+def device_counts(requested: list[int] | None) -> list[int]:
+    available = jax.device_count()
+    if requested:
+        bad = [n for n in requested if n < 1 or n > available]
+        if bad:
+            raise ValueError(
+                f"--device-counts {bad} not available: this machine has {available} device(s)"
+            )
+        return sorted(set(requested))
+    counts, n = [], 1
+    while n <= available:
+        counts.append(n)
+        n *= 2
+    if counts[-1] != available:
+        counts.append(available)
+    return counts
+
+
+def _timed(call, repeats: int) -> tuple[float, float]:
+    """(first call s, median of `repeats` later calls s); `call()` returns what to block on."""
+    t0 = time.perf_counter()
+    jax.block_until_ready(call())
+    first = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(call())
+        times.append(time.perf_counter() - t0)
+    return first, statistics.median(times)
+
+
+def time_env_devices(task: str, per_device: int, devices: int, steps: int, repeats: int):
+    from mara_mjx.benchmark import make_rollout
+
+    env = mara_mjx.make(task)
+    benv = BatchedEnv(env, per_device * devices, devices=devices)
+    rollout = make_rollout(benv, steps)
+    box = {"state": jax.jit(benv.reset)(jax.random.key(0)), "key": jax.random.key(1)}
+
+    def call():
+        box["state"], box["key"], collided = rollout(box["state"], box["key"])
+        return collided
+
+    first, median = _timed(call, repeats)
+    return {
+        "part": "env",
+        "scaling": "weak",
+        "task": task,
+        "devices": devices,
+        "num_envs": benv.num_envs,
+        "per_device_envs": per_device,
+        "steps_per_call": steps,
+        "compile_s": max(first - median, 0.0),
+        "median_call_s": median,
+        "env_steps_per_s": benv.num_envs * steps / median,
+    }
+
+
+def time_ppo_devices(task: str, config, devices: int, updates: int, repeats: int, scaling: str):
+    from mara_mjx.ppo import make_train
+
+    trainer = make_train(mara_mjx.make(task), config, updates_per_call=updates, devices=devices)
+    box = {"state": trainer.init(jax.random.key(0))}
+
+    def call():
+        box["state"], metrics = trainer.run(box["state"], updates)
+        return metrics["reward_mean"]
+
+    first, median = _timed(call, repeats)
+    return {
+        "part": "ppo",
+        "scaling": scaling,
+        "task": task,
+        "devices": devices,
+        "num_envs": config.num_envs,
+        "num_steps": config.num_steps,
+        "num_minibatches": config.num_minibatches,
+        "updates_per_call": updates,
+        "compile_s": max(first - median, 0.0),
+        "median_call_s": median,
+        "env_steps_per_s": config.batch_size * updates / median,
+    }
+
+
+def add_efficiency(records: list[dict[str, Any]]) -> None:
+    """efficiency = rate(n) / (n rate(1)) within each (part, scaling) series."""
+    base = {(r["part"], r["scaling"]): r["env_steps_per_s"] for r in records if r["devices"] == 1}
+    for r in records:
+        one = base.get((r["part"], r["scaling"]))
+        r["efficiency"] = r["env_steps_per_s"] / (r["devices"] * one) if one else None
+
+
+def scaling_study(args: argparse.Namespace) -> list[dict[str, Any]]:
+    from mara_mjx.ppo import PRESETS
+
+    task = args.tasks[0]
+    counts = device_counts(getattr(args, "device_counts", None))
+    per_device = 64 if args.quick else getattr(args, "scaling_envs", 16384)
+    steps = 4 if args.quick else args.steps
+    repeats = 1 if args.quick else args.repeats
+    default = PRESETS["default"]
+    if args.quick:
+        default = default.replace(num_envs=8, num_steps=4, num_minibatches=2, update_epochs=1)
+    updates = 1 if args.quick else getattr(args, "updates_per_call", 10)
+    records = []
+    for n in counts:
+        print(f"scaling: {n} device(s)", flush=True)
+        records.append(time_env_devices(task, per_device, n, steps, repeats))
+        weak = default.replace(
+            num_envs=default.num_envs * n,
+            total_timesteps=max(default.total_timesteps, default.batch_size * n * updates),
+        )
+        records.append(time_ppo_devices(task, weak, n, updates, repeats, "weak"))
+        if n > 1:
+            records.append(time_ppo_devices(task, default, n, updates, repeats, "strong"))
+    # strong scaling's 1-device point is the weak one (same config)
+    records += [
+        {**r, "scaling": "strong"} for r in records if r["part"] == "ppo" and r["devices"] == 1
+    ]
+    add_efficiency(records)
+    return records
