@@ -15,7 +15,8 @@ Per (task, driver, environment count):
     `lax.scan`, so for it the study also gives a loop-corrected estimate,
     train + substeps x (real - train), i.e. it takes the real step's counted cost beyond
     the train step (same task and size) as one substep's cost. The roofline uses the
-    corrected numbers.
+    corrected numbers. Loops inside a substep (the constraint solver's Newton
+    iterations, whose count is dynamic) are still counted once.
   * The device's ceilings, measured in the same run (compile excluded, best of
     `repeats` timed calls, each ended with block_until_ready): a float32 matmul at
     `Precision.HIGHEST` (no TF32; on GPUs this runs on the float32 units, the ceiling
@@ -253,7 +254,9 @@ LIMIT_TABLE: dict[str, Any] = {
             "FLOPs and bytes are XLA's cost-analysis estimates (not hardware counters); XLA "
             "counts a while-loop body once, so the real driver's numbers are loop-corrected "
             "estimates: train + substeps x (real - train) (`xla_counted_*` in the JSON are "
-            "the raw counts).",
+            "the raw counts); loops inside a substep (the constraint solver's iterations) "
+            "are still counted once, so the real driver's cost is, if anything, "
+            "underestimated and its bound overestimated.",
         ]
         if records
         else []

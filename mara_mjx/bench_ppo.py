@@ -29,17 +29,22 @@ affine map onto the joint box (`BraxMaraEnv.to_joint_targets`).
 
 Clocks. `t_s`: wall-clock seconds since the start of training (ours: before
 `make_train`; brax: before `ppo.train`), compile included. `t_run_s`: `t_s` minus the
-one-time compile, the time JAX spent tracing, lowering and compiling until the end of
-the first jitted call (`CompileClock`: the union of the time spans of the
-`/jax/core/compile/*` events that `jax.monitoring` reports, so nested traces count
-once). Compiles after the first call (`later_compile_s`; brax's host loop re-jits a few
-small functions every epoch) count as training time. The same clock serves both sides;
-`first_call_overhead_s` is what the first call cost beyond the steady-state rate after
-the subtraction (compile work JAX does not report, warm-up), as a check. "Time to X mm"
-is `t_run_s` of the first snapshot below X (granularity: one jitted call); env steps/s
-is the steady state from the end of the first call to the end of the run (`t_run_s`
-clock, so host work between calls, such as taking the snapshots, counts); brax's own
-`training/sps` (epoch time only) is kept as `brax_reported_sps_median`.
+time JAX spent tracing, lowering and compiling until then (`CompileClock`: the union of
+the time spans of the `/jax/core/compile/*` events that `jax.monitoring` reports, so
+nested traces count once). The same clock serves both sides. It matters for brax:
+brax 0.14.2 under JAX >= 0.10 compiles its training epoch a second time during the
+second epoch (the replicated training state comes back from the first epoch with
+another sharding), which this excludes like the first compile
+(`compile_after_first_call_s` shows it). `first_call_overhead_s` is what the first call
+cost beyond the steady-state rate after the subtraction (compile work JAX does not
+report, warm-up), as a check. "Time to X mm" is `t_run_s` of the first snapshot below X
+(granularity: one jitted call); env steps/s is the steady state from the end of the
+first call to the end of the run on the `t_run_s` clock, so host work between calls
+(taking the snapshots, brax's host loop) counts; brax's own `training/sps` (epoch time
+only) is kept as `brax_reported_sps_median`.
+
+brax 0.14.2 calls `jax.device_put_replicated`, which JAX 0.10 removed; `train_brax`
+provides JAX's documented drop-in replacement while brax trains (`brax_jax_compat`).
 """
 
 from __future__ import annotations
@@ -86,7 +91,9 @@ class CompileClock:
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        jax.monitoring.unregister_event_time_span_listener(self._listen)
+        unregister = getattr(jax.monitoring, "unregister_event_time_span_listener", None)
+        if unregister is not None:  # else the listener stays, harmlessly
+            unregister(self._listen)
 
     def compile_s(self, until: float) -> float:
         """Seconds of compile between the start and `until` (overlapping spans once)."""
@@ -176,13 +183,10 @@ class Run:
     def summary(self) -> dict[str, Any]:
         """Compile time, steady-state env steps/s and the time to each threshold of the
         error measures in the curve (JSON-ready; None where not reached). Sets each
-        point's `t_run_s`: `t_s` minus the compile time up to the end of the first call
-        (one-time compile); compiles after that (`later_compile_s`, e.g. small host-side
-        functions re-jitted every epoch) count as training time."""
+        point's `t_run_s`: `t_s` minus the compile time until then."""
         c = self.curve
-        one_time = c[min(1, len(c) - 1)]["compile_s"]
         for p in c:
-            p["t_run_s"] = p["t_s"] - min(p["compile_s"], one_time)
+            p["t_run_s"] = p["t_s"] - p["compile_s"]
         first = 1 if len(c) >= 3 else 0  # steady state from the end of the first call
         steps = c[-1]["env_steps"] - c[first]["env_steps"]
         seconds = c[-1]["t_run_s"] - c[first]["t_run_s"]
@@ -196,8 +200,8 @@ class Run:
             "task": self.task,
             "env_steps": c[-1]["env_steps"],
             "calls": len(c) - 1,
-            "compile_s": one_time,
-            "later_compile_s": c[-1]["compile_s"] - one_time,
+            "compile_s": c[-1]["compile_s"],
+            "compile_after_first_call_s": c[-1]["compile_s"] - c[min(1, len(c) - 1)]["compile_s"],
             "wall_s": self.wall_s,
             "run_s": c[-1]["t_run_s"],
             "env_steps_per_s": sps,
@@ -271,12 +275,15 @@ def brax_kwargs(config: PPOConfig, episode_length: int) -> dict[str, Any]:
     cost (0 in the default preset: no entropy bonus on either side), gradient-norm clip,
     advantage normalisation, observation normalisation, reward scaling, separate tanh
     MLPs of `hidden_sizes` for policy and value, state-independent noise, seed, horizon.
-    Not matchable (brax's own): a constant learning rate (ours: `lr_schedule`, linear to 0
-    in the default preset), Adam eps 1e-8 (ours 1e-5), a tanh-squashed Gaussian in
-    [-1, 1] mapped to the joint box (ours: a Gaussian on joint targets in rad), brax's
-    noise parametrisation (softplus scale, init 1) and lecun-uniform initialisation
-    (ours: log-std and orthogonal), no clipping of normalised observations (ours: +-10),
-    and truncation handled by masking in GAE (ours: bootstrap from the final obs)."""
+    Not matchable (brax's own; `unmatched` lists our values): a constant learning rate
+    (ours: `lr_schedule`, linear to 0 in the default preset), Adam eps 1e-8 (ours 1e-5),
+    absolute actions, a tanh-squashed Gaussian in [-1, 1] mapped to the joint box by the
+    adapter (ours: a Gaussian on joint targets in rad, in the default preset relative to
+    the current joint positions, `relative_actions`), brax's noise parametrisation
+    (softplus scale, init 1, floor 0.001) and lecun-uniform initialisation (ours: a
+    log-std with `init_log_std` and `log_std_floor`, orthogonal), no clipping of
+    normalised observations (ours: +-`obs_clip`), and truncation handled by masking in
+    GAE (ours: bootstrap from the final obs)."""
     import flax.linen as nn
     from brax.training.agents.ppo import networks as ppo_networks
 
@@ -333,6 +340,14 @@ def brax_jax_compat() -> Any:
         yield
     finally:
         del jax.device_put_replicated
+
+
+def unmatched(config: PPOConfig) -> dict[str, Any]:
+    """Our values of the PPOConfig fields brax has no equivalent for (see brax_kwargs)."""
+    names = ("lr_schedule", "adam_eps", "relative_actions", "init_log_std", "log_std_floor")
+    names += ("obs_clip",)
+    d = config.to_dict()
+    return {name: d[name] for name in names if name in d}
 
 
 def train_brax(
@@ -508,7 +523,7 @@ def brax_study(args: argparse.Namespace) -> list[dict[str, Any]]:
         score_snapshots(theirs, make_scorer(env, act, scoring))
         a, b = ours.summary(), theirs.summary()
         common = {"score": dataclasses.asdict(scoring), "num_envs": config.num_envs}
-        b = {**b, **common, "brax_kwargs": kwargs_json}
+        b = {**b, **common, "brax_kwargs": kwargs_json, "unmatched": unmatched(config)}
         a = {**a, **common, "preset": args.preset, "ppo": config.to_dict()}
         a["brax_over_ours_time_to_5mm"] = _ratio(b.get("settled_to_5mm_s"), a["settled_to_5mm_s"])
         a["ours_over_brax_env_steps_per_s"] = _ratio(a["env_steps_per_s"], b["env_steps_per_s"])
@@ -638,6 +653,20 @@ TRAIN_TABLE: dict[str, Any] = {
     "plot": plot_train,
 }
 
+
+def _brax_note(records: list[dict[str, Any]]) -> str:
+    theirs = next((r for r in records if "unmatched" in r), {})
+    ours_only = ", ".join(f"{k} {v}" for k, v in theirs.get("unmatched", {}).items())
+    return (
+        _score_note(records) + " brax ran with `run_evals=False` (no evaluation cost); its "
+        "hyperparameters (`brax_kwargs` in the JSON) come from the same PPOConfig, entropy "
+        "cost 0 on both sides. Ours only, brax has no equivalent: "
+        f"{ours_only or 'nothing'}; brax's constant learning rate, Adam eps 1e-8, "
+        "tanh-squashed absolute actions and its own initialisation and noise "
+        "parametrisation (`mara_mjx.bench_ppo.brax_kwargs`)."
+    )
+
+
 BRAX_TABLE: dict[str, Any] = {
     "title": "brax study: brax's PPO vs ours, same task, same env steps",
     "columns": [
@@ -652,11 +681,6 @@ BRAX_TABLE: dict[str, Any] = {
         ("brax / ours time to 5 mm", lambda r: _cell(r.get("brax_over_ours_time_to_5mm"), 2)),
         ("ours / brax steps/s", lambda r: _cell(r.get("ours_over_brax_env_steps_per_s"), 2)),
     ],
-    "notes": lambda records: [
-        _score_note(records) + " brax ran with `run_evals=False` (no evaluation cost); "
-        "its hyperparameters (`brax_kwargs` in the JSON) come from the same PPOConfig; "
-        "entropy cost 0 on both sides. Differences brax does not allow to match: see "
-        "`mara_mjx.bench_ppo.brax_kwargs`."
-    ],
+    "notes": lambda records: [_brax_note(records)],
     "plot": plot_brax,
 }

@@ -22,11 +22,31 @@ Studies:
         steps x 10) of both, and MJX / C (env steps/s ratio) on the MJX row.
         C MuJoCo has no kinematics-only rollout, so the train driver has no C peer
         here. `--skip-mjx` times the C side only (the MJX real-driver compile takes
-        about 35 s on a CPU). brax-PPO training is not part of the benchmark yet.
+        about 35 s on a CPU). The PPO peer is the `brax` study.
+  train our PPO end to end on each task (`--preset`, default "default"; `--total`,
+        `--num-envs`, ... override it): compile time apart, env steps/s including
+        learning, and error (mm) against wall-clock after every jitted call of
+        `--updates-per-call` updates, both the training metric `det_error_mm` and the
+        common scorer's settled error; time to 5 mm and 1 mm; at the end the paper's
+        evaluation (stop at 5 mm) and the same to the horizon. (`mara_mjx.bench_ppo`)
+  brax  brax's PPO (`brax.training.agents.ppo`) on `make_brax_env(task)` against ours,
+        same task, same env steps, hyperparameters from the same PPOConfig (as far as
+        brax allows: `bench_ppo.brax_kwargs`). Both keep (wall-clock, params) snapshots
+        during training; after training every snapshot is scored by one common scorer
+        (the deterministic policy for `--score-steps` steps from `--score-episodes`
+        noisy resets, mean per-axis error over the last `--score-last` steps). Reported:
+        env steps/s during training, wall-clock to 5 mm and 1 mm (compile excluded),
+        and the ratios. (`mara_mjx.bench_ppo`, whose docstring defines the clocks)
+  limit FLOPs and bytes of one env step (XLA's cost analysis: estimates) against the
+        device's ceilings measured in the same run (float32 HIGHEST and bfloat16
+        matmul FLOP/s, elementwise memory bandwidth): the roofline bound on env
+        steps/s, the measured env steps/s (as in `env`) and the fraction reached, for
+        `--tasks` x `--drivers` x `--sizes` / `--real-sizes`. (`mara_mjx.bench_limit`)
 
 Output: a table on the terminal, and in `--out` (default benchmarks/results/):
-  <study>.json (records + device, versions, command), <study>.md, <study>.png.
-`--quick` runs tiny sizes for a CPU smoke test.
+  <study>.json (records + device, versions, settings, command), <study>.md, <study>.png.
+`--quick` runs tiny sizes for a CPU smoke test. Matmuls run in float32 at HIGHEST
+precision; XLA's non-deterministic (faster) GPU ops are used unless `--deterministic`.
 """
 
 from __future__ import annotations

@@ -241,18 +241,19 @@ def test_compile_clock_counts_overlapping_spans_once():
         assert clock.compile_s(t0 + 2.5) == pytest.approx(0.5 + 1.5)
 
 
-def test_run_summary_subtracts_one_time_compile_only():
+def test_run_summary_subtracts_compile():
     run = Run("test", "MARA")
-    times = [(1.0, 1.0), (5.0, 4.0), (6.0, 4.5), (7.0, 4.5)]  # (t_s, compile so far)
+    times = [(1.0, 1.0), (5.0, 4.0), (7.0, 5.0), (8.0, 5.0)]  # (t_s, compile so far)
     errors = [None, 8.0, 3.0, 0.5]
     for i, ((t, c), e) in enumerate(zip(times, errors, strict=True)):
         run.curve.append({"t_s": t, "compile_s": c, "env_steps": 100 * i, "settled_mm": e})
         run.snapshots.append(None)
     out = run.summary()
     assert [p["t_run_s"] for p in out["curve"]] == [0.0, 1.0, 2.0, 3.0]
-    assert out["compile_s"] == 4.0 and out["later_compile_s"] == 0.5
+    assert out["compile_s"] == 5.0 and out["compile_after_first_call_s"] == 1.0
     assert out["env_steps_per_s"] == pytest.approx(200 / 2.0)  # from the end of call 1
-    assert out["settled_to_5mm_s"] == 2.0 and out["settled_to_5mm_wall_s"] == 6.0
+    assert out["first_call_overhead_s"] == pytest.approx(1.0 - 100 / 100)
+    assert out["settled_to_5mm_s"] == 2.0 and out["settled_to_5mm_wall_s"] == 7.0
     assert out["settled_to_1mm_env_steps"] == 300 and out["best_settled_mm"] == 0.5
 
 
