@@ -32,16 +32,16 @@ Clocks. `t_s`: wall-clock seconds since the start of training (ours: before
 time JAX spent tracing, lowering and compiling until then (`CompileClock`: the union of
 the time spans of the `/jax/core/compile/*` events that `jax.monitoring` reports, so
 nested traces count once). The same clock serves both sides. It matters for brax:
-brax 0.14.2 under JAX >= 0.10 compiles its training epoch a second time during the
-second epoch (the replicated training state comes back from the first epoch with
-another sharding), which this excludes like the first compile
-(`compile_after_first_call_s` shows it). `first_call_overhead_s` is what the first call
-cost beyond the steady-state rate after the subtraction (compile work JAX does not
-report, warm-up), as a check. "Time to X mm" is `t_run_s` of the first snapshot below X
-(granularity: one jitted call); env steps/s is the steady state from the end of the
-first call to the end of the run on the `t_run_s` clock, so host work between calls
-(taking the snapshots, brax's host loop) counts; brax's own `training/sps` (epoch time
-only) is kept as `brax_reported_sps_median`.
+brax 0.14.2 under JAX 0.10 compiles its training epoch a second time during the second
+epoch (the same program: with a persistent compilation cache the second compile is a
+cache hit; why JAX's in-memory cache misses was not investigated), which this excludes
+like the first compile (`compile_after_first_call_s` shows it). `first_call_overhead_s`
+is what the first call cost beyond the steady-state rate after the subtraction (compile
+work JAX does not report, warm-up), as a check. "Time to X mm" is `t_run_s` of the
+first snapshot below X (granularity: one jitted call); env steps/s is the steady state
+from the end of the first call to the end of the run on the `t_run_s` clock, so host
+work between calls (taking the snapshots, brax's host loop) counts; brax's own
+`training/sps` (epoch time only) is kept as `brax_reported_sps_median`.
 
 brax 0.14.2 calls `jax.device_put_replicated`, which JAX 0.10 removed; `train_brax`
 provides JAX's documented drop-in replacement while brax trains (`brax_jax_compat`).

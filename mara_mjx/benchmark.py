@@ -476,7 +476,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument(
         "--copy-size",
         type=int,
-        default=2**28,
+        default=2**29,
         help="limit: float32 elements of the x + 1 that measures memory bandwidth",
     )
     ppo = p.add_argument_group("train and brax studies (PPO)")
