@@ -31,16 +31,66 @@ import jax
 import mara_mjx
 from mara_mjx.envs.batched import BatchedEnv
 
+
+def _plot(records: list[dict[str, Any]], title: str, path) -> None:
+    """env steps/s against devices, one line per (part, scaling), with the ideal."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for key in sorted({(r["part"], r["scaling"]) for r in records}):
+        rs = sorted(
+            (r for r in records if (r["part"], r["scaling"]) == key), key=lambda r: r["devices"]
+        )
+        line = ax.plot(
+            [r["devices"] for r in rs],
+            [r["env_steps_per_s"] for r in rs],
+            marker="o",
+            label=f"{key[0]} ({key[1]})",
+        )[0]
+        one = rs[0]["env_steps_per_s"] if rs[0]["devices"] == 1 else None
+        if one:
+            ax.plot(
+                [r["devices"] for r in rs],
+                [one * r["devices"] for r in rs],
+                ":",
+                color=line.get_color(),
+                alpha=0.6,
+            )
+    ax.set_xlabel("devices (dotted: ideal n x one device)")
+    ax.set_ylabel("env steps / s")
+    ax.set_yscale("log")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _eff(r: dict[str, Any]) -> str:
+    return "" if r.get("efficiency") is None else f"{100 * r['efficiency']:.1f}%"
+
+
 SCALING_TABLE = {
+    "title": "scaling study: throughput against devices",
     "columns": [
-        ("part", "part"),
-        ("scaling", "scaling"),
-        ("devices", "devices"),
-        ("num_envs", "envs (global)"),
-        ("compile_s", "compile s"),
-        ("env_steps_per_s", "env steps/s"),
-        ("efficiency", "efficiency"),
+        ("part", lambda r: r["part"]),
+        ("scaling", lambda r: r["scaling"]),
+        ("devices", lambda r: str(r["devices"])),
+        ("envs (global)", lambda r: f"{r['num_envs']:,}"),
+        ("compile (s)", lambda r: f"{r['compile_s']:.1f}"),
+        ("env steps/s", lambda r: f"{r['env_steps_per_s'] / 1e6:.2f} M"),
+        ("efficiency", _eff),
     ],
+    "notes": lambda records: [
+        "Efficiency = env steps/s with n devices / (n x with one device). weak: the "
+        "per-device batch is fixed (env: per-device envs; ppo: 2048 envs x 32 steps per "
+        "device); strong: the default global PPO batch (2048 envs) split over n devices."
+    ],
+    "plot": _plot,
 }
 
 

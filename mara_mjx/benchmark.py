@@ -43,6 +43,12 @@ Studies:
         steps/s, the measured env steps/s (as in `env`) and the fraction reached, for
         `--tasks` x `--drivers` x `--sizes` / `--real-sizes`. (`mara_mjx.bench_limit`)
 
+scaling  env steps/s of the batched step and of PPO against the number of devices
+        (1, 2, 4, ... all; weak scaling with a fixed per-device batch, and strong
+        scaling of the default PPO batch), with the efficiency per added device
+        (`mara_mjx/bench_scaling.py`). The other studies use every device the machine
+        has (`BatchedEnv`'s default), so on a multi-GPU host their numbers are per host.
+
 Output: a table on the terminal, and in `--out` (default benchmarks/results/):
   <study>.json (records + device, versions, settings, command), <study>.md, <study>.png.
 `--quick` runs tiny sizes for a CPU smoke test. Matmuls run in float32 at HIGHEST
@@ -66,7 +72,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import mara_mjx
-from mara_mjx import bench_limit, bench_ppo
+from mara_mjx import bench_limit, bench_ppo, bench_scaling
 from mara_mjx.envs.batched import BatchedEnv
 from mara_mjx.ppo import PRESETS
 from mara_mjx.ppo.flags import configure_jax
@@ -304,6 +310,7 @@ STUDIES = {
     "train": bench_ppo.train_study,
     "brax": bench_ppo.brax_study,
     "limit": bench_limit.limit_study,
+    "scaling": bench_scaling.scaling_study,
 }
 
 
@@ -349,6 +356,7 @@ STUDY_TABLES: dict[str, dict[str, Any]] = {
     "train": bench_ppo.TRAIN_TABLE,
     "brax": bench_ppo.BRAX_TABLE,
     "limit": bench_limit.LIMIT_TABLE,
+    "scaling": bench_scaling.SCALING_TABLE,
 }
 
 
@@ -478,6 +486,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         type=int,
         default=2**29,
         help="limit: float32 elements of the x + 1 that measures memory bandwidth",
+    )
+    scaling = p.add_argument_group("scaling study")
+    scaling.add_argument(
+        "--device-counts", type=int, nargs="+", help="device counts (default 1, 2, 4, ... all)"
+    )
+    scaling.add_argument(
+        "--scaling-envs", type=int, default=16384, help="env part: environments per device"
     )
     ppo = p.add_argument_group("train and brax studies (PPO)")
     ppo.add_argument("--preset", choices=sorted(PRESETS), default="default")
