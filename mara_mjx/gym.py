@@ -256,6 +256,8 @@ class MaraVectorEnv(VectorEnv):
       task: a name of `mara_mjx.registered()`.
       num_envs: N.
       reset_strategy: `BatchedEnv`'s ("select" or "cond").
+      devices: `BatchedEnv`'s: devices to spread the N envs over (None: all; N must be a
+        multiple of their count; 1: one device).
       render_mode: must be None (to watch an arm, use `MaraGymEnv(render_mode=...)`).
       **overrides: env options of `mara_mjx.make`.
     """
@@ -268,11 +270,12 @@ class MaraVectorEnv(VectorEnv):
         num_envs: int = 1,
         reset_strategy: str = "select",
         render_mode: str | None = None,
+        devices: int | None = None,
         **overrides: Any,
     ):
         _check_render_mode(render_mode, (), "MaraVectorEnv (watch one arm with MaraGymEnv)")
         self.env = make(task, **overrides)
-        self.batched = BatchedEnv(self.env, num_envs, reset_strategy)
+        self.batched = BatchedEnv(self.env, num_envs, reset_strategy, devices)
         self.task = task
         self.num_envs = num_envs
         self.render_mode = None
