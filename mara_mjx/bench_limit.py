@@ -41,6 +41,7 @@ import jax.numpy as jnp
 
 import mara_mjx
 from mara_mjx.envs.batched import BatchedEnv
+from mara_mjx.plots import finish_figure
 
 
 def _best_time(fn: Callable[..., Any], args: tuple, repeats: int) -> float:
@@ -217,14 +218,8 @@ def plot_limit(records: list[dict[str, Any]], title: str, path: Any) -> None:
             )
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel("arithmetic intensity (FLOP / byte, XLA cost analysis)")
-    ax.set_ylabel("FLOP / s")
-    ax.set_title(title)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    xlabel = "arithmetic intensity (FLOP / byte, XLA cost analysis)"
+    finish_figure(fig, ax, path, title, xlabel, "FLOP / s", legend_size=7)
 
 
 def _m(x: float) -> str:

@@ -65,6 +65,7 @@ import numpy as np
 from tqdm import tqdm
 
 import mara_mjx
+from mara_mjx.plots import finish_figure
 from mara_mjx.ppo import PRESETS, EvalConfig, EvalResult, PPOConfig, make_policy, make_train
 from mara_mjx.ppo.evaluation import make_evaluate
 
@@ -586,14 +587,8 @@ def _plot_error_curves(
     for mm in THRESHOLDS_MM:
         ax.axhline(mm, color="grey", linewidth=0.8, linestyle=":")
     ax.set_yscale("log")
-    ax.set_xlabel("wall-clock since start of training, compile excluded (s)")
-    ax.set_ylabel("mean per-axis error (mm)")
-    ax.set_title(title)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    xlabel = "wall-clock since start of training, compile excluded (s)"
+    finish_figure(fig, ax, path, title, xlabel, "mean per-axis error (mm)", legend_size=7)
 
 
 def plot_train(records: list[dict[str, Any]], title: str, path: Any) -> None:

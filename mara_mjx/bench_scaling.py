@@ -30,6 +30,7 @@ import jax
 
 import mara_mjx
 from mara_mjx.envs.batched import BatchedEnv
+from mara_mjx.plots import finish_figure
 
 
 def _plot(records: list[dict[str, Any]], title: str, path) -> None:
@@ -59,15 +60,8 @@ def _plot(records: list[dict[str, Any]], title: str, path) -> None:
                 color=line.get_color(),
                 alpha=0.6,
             )
-    ax.set_xlabel("devices (dotted: ideal n x one device)")
-    ax.set_ylabel("env steps / s")
     ax.set_yscale("log")
-    ax.set_title(title)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    finish_figure(fig, ax, path, title, "devices (dotted: ideal n x one device)", "env steps / s")
 
 
 def _eff(r: dict[str, Any]) -> str:

@@ -74,6 +74,7 @@ import numpy as np
 import mara_mjx
 from mara_mjx import bench_limit, bench_ppo, bench_scaling
 from mara_mjx.envs.batched import BatchedEnv
+from mara_mjx.plots import finish_figure
 from mara_mjx.ppo import PRESETS
 from mara_mjx.ppo.flags import configure_jax
 
@@ -430,14 +431,7 @@ def plot_throughput(
         )
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel("environments")
-    ax.set_ylabel("env steps / s")
-    ax.set_title(title)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    finish_figure(fig, ax, path, title, "environments", "env steps / s")
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:

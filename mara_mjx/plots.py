@@ -156,6 +156,22 @@ def plot_curves(runs: Sequence[str | os.PathLike], out: str | os.PathLike) -> Pa
     return _save(fig, out)
 
 
+def finish_figure(
+    fig, ax, path: str | os.PathLike, title: str, xlabel: str, ylabel: str, legend_size: int = 8
+) -> None:
+    """The benchmark plots' common ending: labels, title, grid, legend, save (120 dpi), close."""
+    import matplotlib.pyplot as plt
+
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=legend_size)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def _save(fig, out: str | os.PathLike) -> Path:
     plt = _pyplot()
     out = Path(out)
