@@ -226,6 +226,7 @@ def _bad_train_inputs(tmp: Path, run: Path) -> list[tuple[list[str], str]]:
         (["--num_envs", "4"], "--env is required"),
         ([*tiny, "--num_minibatches", "3"], "does not divide the batch"),
         ([*tiny, "--velocity", "3"], "velocity"),
+        ([*tiny, "--devices", "64"], "devices=64 but only"),
         ([*tiny, "--out", str(not_a_folder / "run")], "cannot write to the output folder"),
         ([*tiny, "--out", str(run)], "already holds a run"),
         (["--resume", str(tmp / "missing")], "does not exist"),
