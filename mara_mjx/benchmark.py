@@ -6,7 +6,11 @@ Studies:
         and driver over a sweep of environment counts. Compile time (first call) is
         reported apart from the steady state (median of `--repeats` timed calls after a
         warm-up). For the real driver, physics steps/s = env steps/s x substeps.
-  peers C MuJoCo vs MJX on the same physics, at each of `--peer-sizes` env counts.
+  peers C MuJoCo vs MJX on the same model, at each of `--peer-sizes` env counts.
+        Train driver: C MuJoCo mj_kinematics + mj_collision for random joint targets
+        in one process per CPU core (`mara_mjx/bench_cpeer.py`) against the env
+        study's timing of the MJX train driver.
+        Real driver:
         What is compared: the `real` driver's work. C side: `mujoco.rollout.rollout`
         (nthread = os.cpu_count(), one MjData per thread, persistent thread pool) of
         N arms x `--steps` env steps x 10 substeps of mj_step (5 ms, implicitfast,
@@ -20,9 +24,8 @@ Studies:
         observation, reward, penetration checks and auto-reset. So the ratio
         MJX / C slightly favours C. Reported: env steps/s and physics steps/s (env
         steps x 10) of both, and MJX / C (env steps/s ratio) on the MJX row.
-        C MuJoCo has no kinematics-only rollout, so the train driver has no C peer
-        here. `--skip-mjx` times the C side only (the MJX real-driver compile takes
-        about 35 s on a CPU). The PPO peer is the `brax` study.
+        `--skip-mjx` times the C sides only (the MJX real-driver compile takes about
+        35 s on a CPU). The PPO peer is the `brax` study.
   train our PPO end to end on each task (`--preset`, default "default"; `--total`,
         `--num-envs`, ... override it): compile time apart, env steps/s including
         learning, and error (mm) against wall-clock after every jitted call of
@@ -275,13 +278,40 @@ def time_c_rollout(
 
 
 def peers_study(args: argparse.Namespace) -> list[dict[str, Any]]:
-    """C MuJoCo rollout vs the MJX real driver, same env counts, same run."""
+    """C MuJoCo vs MJX, same env counts, same run: the train driver's work (kinematics +
+    collision, `bench_cpeer`) and the real driver's (`mujoco.rollout`)."""
     import os
+
+    from mara_mjx.bench_cpeer import KinematicsPool
 
     task = args.tasks[0]
     env = mara_mjx.make(task, driver="real")
     nthread = os.cpu_count() or 1
     records = []
+    pool = KinematicsPool(env.arm.mj_model, nthread)
+    try:
+        for n in args.peer_sizes:
+            c = pool.time(n, args.steps, args.repeats)
+            records.append(c)
+            if args.skip_mjx:
+                continue
+            mj = time_env(task, "train", n, args.steps, args.repeats)
+            ratio = mj["env_steps_per_s"] / c["env_steps_per_s"]
+            records.append(
+                {
+                    "impl": "mjx train driver (BatchedEnv.step)",
+                    "device": device_info()["device_kind"],
+                    **mj,
+                    "mjx_over_c": ratio,
+                }
+            )
+            print(
+                f"n={n:>7d} train driver: C {c['env_steps_per_s'] / 1e6:8.3f} M/s  "
+                f"MJX {mj['env_steps_per_s'] / 1e6:8.3f} M/s  MJX/C {ratio:.2f}x",
+                flush=True,
+            )
+    finally:
+        pool.close()
     for n in args.peer_sizes:
         c = time_c_rollout(env, n, args.steps, args.repeats, nthread)
         records.append(c)
@@ -339,7 +369,7 @@ STUDY_TABLES: dict[str, dict[str, Any]] = {
         "style": lambda r: "-" if r["driver"] == "train" else "--",
     },
     "peers": {
-        "title": "peers study: C MuJoCo rollout (all CPU cores) vs MJX, real-driver physics",
+        "title": "peers study: C MuJoCo (all CPU cores) vs MJX, train-driver and real-driver work",
         "columns": [
             ("implementation", lambda r: r["impl"]),
             ("device", lambda r: r["device"]),

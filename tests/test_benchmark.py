@@ -155,7 +155,10 @@ def test_env_study_quick(runs):
 def test_peers_study_quick(runs):
     data = _finish(runs, "peers")
     assert META_KEYS <= set(data) and data["study"] == "peers"
-    (rec,) = data["records"]
+    kin, rec = data["records"]
+    assert kin["impl"].startswith("mujoco C kinematics+collision") and kin["driver"] == "train"
+    assert kin["num_envs"] == 4 and kin["env_steps_per_s"] > 0
+    assert 0.0 <= kin["collision_fraction"] <= 1.0 and kin["median_call_s"] <= kin["wall_s"]
     assert rec["impl"].startswith("mujoco C rollout")
     assert rec["num_envs"] == 4 and rec["substeps"] == 10
     assert rec["physics_steps_per_s"] == pytest.approx(10 * rec["env_steps_per_s"])
