@@ -18,7 +18,6 @@ from pathlib import Path
 import jax
 import numpy as np
 
-import mara_mjx
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo.config import EvalConfig
 from mara_mjx.ppo.evaluation import evaluate
@@ -26,7 +25,7 @@ from mara_mjx.ppo.evaluation import evaluate
 
 def trace(run: Path) -> dict:
     arrays, meta = ckpt.load_checkpoint(ckpt.find_checkpoint(run))
-    env = mara_mjx.make(meta["env_name"], **ckpt.env_overrides(meta["env_config"]))
+    env = ckpt.make_env(meta)
     policy = ckpt.policy_from_checkpoint(arrays, meta)
 
     def body(state, _):

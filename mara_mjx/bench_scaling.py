@@ -29,7 +29,6 @@ from typing import Any
 import jax
 
 import mara_mjx
-from mara_mjx.envs.batched import BatchedEnv
 from mara_mjx.plots import finish_figure
 
 
@@ -120,29 +119,15 @@ def _timed(call, repeats: int) -> tuple[float, float]:
 
 
 def time_env_devices(task: str, per_device: int, devices: int, steps: int, repeats: int):
-    from mara_mjx.benchmark import make_rollout
+    from mara_mjx.benchmark import time_env
 
-    env = mara_mjx.make(task)
-    benv = BatchedEnv(env, per_device * devices, devices=devices)
-    rollout = make_rollout(benv, steps)
-    box = {"state": jax.jit(benv.reset)(jax.random.key(0)), "key": jax.random.key(1)}
-
-    def call():
-        box["state"], box["key"], collided = rollout(box["state"], box["key"])
-        return collided
-
-    first, median = _timed(call, repeats)
+    record = time_env(task, "train", per_device * devices, steps, repeats, devices=devices)
     return {
         "part": "env",
         "scaling": "weak",
-        "task": task,
         "devices": devices,
-        "num_envs": benv.num_envs,
         "per_device_envs": per_device,
-        "steps_per_call": steps,
-        "compile_s": max(first - median, 0.0),
-        "median_call_s": median,
-        "env_steps_per_s": benv.num_envs * steps / median,
+        **record,
     }
 
 

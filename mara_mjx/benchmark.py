@@ -143,10 +143,13 @@ def make_rollout(benv: BatchedEnv, steps: int):
     return rollout
 
 
-def time_env(task: str, driver: str, num_envs: int, steps: int, repeats: int) -> dict[str, Any]:
-    """Compile time and steady-state env steps/s of one (task, driver, num_envs)."""
+def time_env(
+    task: str, driver: str, num_envs: int, steps: int, repeats: int, devices: int | None = None
+) -> dict[str, Any]:
+    """Compile time and steady-state env steps/s of one (task, driver, num_envs), the
+    envs spread over `devices` (None: all, BatchedEnv's default)."""
     env = mara_mjx.make(task, driver=driver)
-    benv = BatchedEnv(env, num_envs)
+    benv = BatchedEnv(env, num_envs, devices=devices)
     rollout = make_rollout(benv, steps)
     state = jax.jit(benv.reset)(jax.random.key(0))
     key = jax.random.key(1)
@@ -288,50 +291,29 @@ def peers_study(args: argparse.Namespace) -> list[dict[str, Any]]:
     env = mara_mjx.make(task, driver="real")
     nthread = os.cpu_count() or 1
     records = []
+
+    def compare(driver: str, n: int, c: dict[str, Any]) -> None:
+        """Record C's timing `c` and (unless --skip-mjx) MJX's for the same driver and n."""
+        records.append(c)
+        line = f"n={n:>7d} {driver} driver: C {c['env_steps_per_s'] / 1e6:8.3f} M/s"
+        if not args.skip_mjx:
+            mj = time_env(task, driver, n, args.steps, args.repeats)
+            ratio = mj["env_steps_per_s"] / c["env_steps_per_s"]
+            impl = f"mjx {driver} driver (BatchedEnv.step)"
+            records.append(
+                {"impl": impl, "device": device_info()["device_kind"], **mj, "mjx_over_c": ratio}
+            )
+            line += f"  MJX {mj['env_steps_per_s'] / 1e6:8.3f} M/s  MJX/C {ratio:.2f}x"
+        print(line, flush=True)
+
     pool = KinematicsPool(env.arm.mj_model, nthread)
     try:
         for n in args.peer_sizes:
-            c = pool.time(n, args.steps, args.repeats)
-            records.append(c)
-            if args.skip_mjx:
-                continue
-            mj = time_env(task, "train", n, args.steps, args.repeats)
-            ratio = mj["env_steps_per_s"] / c["env_steps_per_s"]
-            records.append(
-                {
-                    "impl": "mjx train driver (BatchedEnv.step)",
-                    "device": device_info()["device_kind"],
-                    **mj,
-                    "mjx_over_c": ratio,
-                }
-            )
-            print(
-                f"n={n:>7d} train driver: C {c['env_steps_per_s'] / 1e6:8.3f} M/s  "
-                f"MJX {mj['env_steps_per_s'] / 1e6:8.3f} M/s  MJX/C {ratio:.2f}x",
-                flush=True,
-            )
+            compare("train", n, pool.time(n, args.steps, args.repeats))
     finally:
         pool.close()
     for n in args.peer_sizes:
-        c = time_c_rollout(env, n, args.steps, args.repeats, nthread)
-        records.append(c)
-        if args.skip_mjx:
-            print(f"n={n:>7d}  C {c['physics_steps_per_s'] / 1e6:8.3f} M phys/s", flush=True)
-            continue
-        mj = time_env(task, "real", n, args.steps, args.repeats)
-        mj = {
-            "impl": "mjx real driver (BatchedEnv.step)",
-            "device": device_info()["device_kind"],
-            **mj,
-            "mjx_over_c": mj["env_steps_per_s"] / c["env_steps_per_s"],
-        }
-        records.append(mj)
-        print(
-            f"n={n:>7d}  C {c['physics_steps_per_s'] / 1e6:8.3f} M phys/s"
-            f"  MJX {mj['physics_steps_per_s'] / 1e6:8.3f} M phys/s"
-            f"  MJX/C {mj['mjx_over_c']:.2f}x",
-            flush=True,
-        )
+        compare("real", n, time_c_rollout(env, n, args.steps, args.repeats, nthread))
     return records
 
 

@@ -23,7 +23,6 @@ import argparse
 import sys
 from pathlib import Path
 
-import mara_mjx
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo.config import EvalConfig
@@ -77,21 +76,8 @@ def main(argv: list[str] | None = None) -> int:
         config = EvalConfig().replace(**overrides(args, "eval"))
     except ValueError as e:
         raise UserError(f"invalid eval config: {e}") from e
-    env_options = {**ckpt.env_overrides(meta["env_config"]), **overrides(args, "env")}
+    env = ckpt.make_env(meta, **overrides(args, "env"))
     name = meta["env_name"]
-    if name not in mara_mjx.registered():
-        raise UserError(
-            f"checkpoint env {name!r} is not registered; registered: {mara_mjx.registered()}"
-        )
-    try:
-        env = mara_mjx.make(name, **env_options)
-    except ValueError as e:
-        raise UserError(f"cannot build env {name}: {e}") from e
-    if env.observation_size != meta["observation_size"]:
-        raise UserError(
-            f"env {name} observes {env.observation_size} values, the policy expects "
-            f"{meta['observation_size']}"
-        )
     out = (
         Path(args.json)
         if args.json

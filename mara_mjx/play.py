@@ -36,7 +36,6 @@ from typing import Any
 
 import numpy as np
 
-import mara_mjx
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo.config import EvalConfig
@@ -154,8 +153,8 @@ def check_video_args(args: argparse.Namespace) -> Path | None:
     return path
 
 
-def env_options(args: argparse.Namespace, meta: dict[str, Any]) -> dict[str, Any]:
-    """The checkpoint's env config with the command line's overrides; -v implies -r."""
+def env_flags(args: argparse.Namespace) -> dict[str, Any]:
+    """The command line's env overrides of the checkpoint's env config; -v implies -r."""
     flags = overrides(args, "env")
     if "velocity" in flags:
         if flags.get("driver", "real") != "real":
@@ -164,7 +163,7 @@ def env_options(args: argparse.Namespace, meta: dict[str, Any]) -> dict[str, Any
                 f"--driver {flags['driver']}"
             )
         flags["driver"] = "real"
-    return {**ckpt.env_overrides(meta["env_config"]), **flags}
+    return flags
 
 
 # ------------------------------------------------------------------- output
@@ -235,20 +234,8 @@ def main(argv: list[str] | None = None) -> int:
         config = EvalConfig().replace(**overrides(args, "eval"))
     except ValueError as e:
         raise UserError(f"invalid episode settings: {e}") from e
+    env = ckpt.make_env(meta, **env_flags(args))
     name = meta["env_name"]
-    if name not in mara_mjx.registered():
-        raise UserError(
-            f"checkpoint env {name!r} is not registered; registered: {mara_mjx.registered()}"
-        )
-    try:
-        env = mara_mjx.make(name, **env_options(args, meta))
-    except ValueError as e:
-        raise UserError(f"cannot build env {name}: {e}") from e
-    if env.observation_size != meta["observation_size"]:
-        raise UserError(
-            f"env {name} observes {env.observation_size} values, the policy expects "
-            f"{meta['observation_size']}"
-        )
 
     # The renderer or the viewer before anything compiles: a machine that cannot show
     # anything fails in a second.

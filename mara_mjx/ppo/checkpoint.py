@@ -191,6 +191,29 @@ def env_overrides(env_config: dict[str, Any]) -> dict[str, Any]:
     return flat
 
 
+def make_env(meta: dict[str, Any], **overrides: Any):
+    """The env a checkpoint was trained on (its saved name and config), with `overrides`
+    (EnvConfig fields) on top; CheckpointError if the env is not registered, the options
+    are invalid, or its observation size is not the policy's."""
+    import mara_mjx
+
+    name = meta["env_name"]
+    if name not in mara_mjx.registered():
+        raise CheckpointError(
+            f"checkpoint env {name!r} is not registered; registered: {mara_mjx.registered()}"
+        )
+    try:
+        env = mara_mjx.make(name, **{**env_overrides(meta["env_config"]), **overrides})
+    except ValueError as e:
+        raise CheckpointError(f"cannot build env {name}: {e}") from e
+    if env.observation_size != meta["observation_size"]:
+        raise CheckpointError(
+            f"env {name} observes {env.observation_size} values, the policy expects "
+            f"{meta['observation_size']}"
+        )
+    return env
+
+
 def load_policy(path: str | os.PathLike):
     """The deterministic `Policy` of a checkpoint file or run folder."""
     return policy_from_checkpoint(*load_checkpoint(find_checkpoint(path)))
