@@ -557,6 +557,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         p.error(f"{', '.join('--' + n.replace('_', '-') for n in bad)} must be positive")
     if args.score_last > args.score_steps:
         p.error("--score-last must not exceed --score-steps")
+    if args.scaling_envs < 1 or any(n < 1 for n in args.device_counts or []):
+        p.error("--scaling-envs and --device-counts must be positive")
     if args.quick:
         args.sizes, args.real_sizes, args.peer_sizes = [4], [4], [4]
         args.steps, args.repeats = 4, 1
@@ -602,6 +604,12 @@ def configure(deterministic: bool) -> dict[str, str]:
 def main(argv: Sequence[str] | None = None) -> None:
     args = parse_args(argv)
     settings = configure(args.deterministic)
+    if args.study == "scaling":  # needs the backend, so after configure; before any compile
+        try:
+            bench_scaling.device_counts(args.device_counts)
+        except ValueError as e:
+            print(f"python -m mara_mjx.benchmark: error: {e}", file=sys.stderr)
+            sys.exit(2)  # as argparse's errors
     meta = {
         "study": args.study,
         "command": "python -m mara_mjx.benchmark "

@@ -268,6 +268,8 @@ def test_run_summary_subtracts_compile():
         (["env", "--out", "/proc/forbidden"], "not writable"),
         (["brax", "--num-envs", "6"], "divisible by num_minibatches"),
         (["train", "--num-minibatches", "7"], "does not divide"),
+        (["scaling", "--scaling-envs", "0"], "must be positive"),
+        (["scaling", "--device-counts", "64"], "not available"),
     ],
 )
 def test_bad_input_gives_clear_error(args, message):
