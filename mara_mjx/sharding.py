@@ -3,19 +3,23 @@
     mesh = make_mesh()            # every device (all hosts after jax.distributed.initialize)
     mesh = make_mesh(2)           # the first two devices
     x = constrain(x, mesh, axis=1)   # inside jit: shard axis 1 of every leaf over "envs"
+    f = map_envs(f, mesh, in_axes=(None, 1), out_axes=None)   # f per device, on its shard
 
-Data parallelism the GSPMD way: the batched env state, the rollout and the minibatches
-are sharded along their environment axis; the parameters and optimiser state are
-replicated; the loss is a mean over the whole (sharded) minibatch, so XLA inserts the
-all-reduce that averages the gradients across devices and every device applies the same
-update. The program is the single-device one with sharding annotations, so N devices
-compute what one device computes on the same global batch, up to the order of
-floating-point reductions. JAX's random numbers are partitionable (the default
-`jax_threefry_partitionable`), so the same key gives the same numbers however the
-arrays are sharded.
+Data parallelism. The batched env state and the rollout are sharded along their
+environment axis the GSPMD way (`constrain`: the single-device program plus annotations;
+XLA partitions it). PPO's SGD phase is written per device instead (`map_envs`, i.e.
+`jax.shard_map`): each device shuffles and splits *its own* environments' samples, so no
+sample crosses devices, and the only collectives are the ones written out with `pmean`:
+one gradient all-reduce per minibatch and the per-minibatch advantage statistics once
+per epoch (benchmarks/NOTES.md section 10 says why). Parameters and optimiser state are
+replicated and every device applies the same update. The split of samples into
+minibatches depends only on global environment indices, so N devices compute what one
+device computes on the same global batch, up to the order of floating-point reductions.
+JAX's random numbers are partitionable (the default `jax_threefry_partitionable`), so the
+same key gives the same numbers however the arrays are sharded.
 
-With one device `make_mesh` returns None and `constrain` is the identity: the
-single-device program has no annotations at all.
+With one device `make_mesh` returns None, `constrain` and `pmean` are the identity and
+`map_envs(f)` is `f`: the single-device program has no annotations at all.
 
 Several hosts: call `jax.distributed.initialize()` first in every process (see the
 README); `jax.devices()` then lists every host's devices and the same code runs
@@ -24,6 +28,7 @@ everywhere, each process stepping its own hosts' share of the environments.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -78,6 +83,41 @@ def constrain(tree: Any, mesh: Mesh | None, axis: int = 0) -> Any:
         return tree
     sharding = NamedSharding(mesh, spec(axis))
     return jax.tree.map(lambda x: jax.lax.with_sharding_constraint(x, sharding), tree)
+
+
+def map_envs(
+    f: Callable[..., Any], mesh: Mesh | None, in_axes: tuple[int | None, ...], out_axes: Any
+) -> Callable[..., Any]:
+    """`f` run once per device on its shard (`jax.shard_map`); `f` itself when mesh is None.
+
+    in_axes: per argument, the axis sharded over "envs" (None: replicated, the same on
+    every device). out_axes: the same for the outputs (a prefix of their tree). Inside
+    `f`, arrays have their per-device shape, and `pmean(x, mesh)` averages over devices.
+
+    The only collectives are the ones `f` writes: with `check_vma=False`, a gradient
+    with respect to a replicated input is this device's gradient, to be `pmean`-ed (with
+    JAX's default check_vma=True it would come back already summed over devices). A
+    replicated output must be the same on every device; `f` guarantees that.
+    """
+    if mesh is None:
+        return f
+
+    def specs(axes):
+        return PartitionSpec() if axes is None else spec(axes)
+
+    out_specs = jax.tree.map(specs, out_axes, is_leaf=lambda x: x is None)
+    return jax.shard_map(
+        f,
+        mesh=mesh,
+        in_specs=tuple(specs(a) for a in in_axes),
+        out_specs=out_specs,
+        check_vma=False,
+    )
+
+
+def pmean(tree: Any, mesh: Mesh | None) -> Any:
+    """Mean over the devices of `mesh`, inside `map_envs`; identity when mesh is None."""
+    return tree if mesh is None else jax.lax.pmean(tree, AXIS)
 
 
 def replicate(tree: Any, mesh: Mesh | None) -> Any:

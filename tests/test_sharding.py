@@ -33,6 +33,14 @@ for devices in (1, 4):
     state, metrics = trainer.run(state, 3)
     results[devices] = (jax.device_get(state), jax.device_get(metrics), n_env,
                         len(state.env_state.obs.sharding.device_set))
+# more minibatches than steps: minibatches cut from env groups (2 per device here)
+groups = config.replace(num_steps=4, num_minibatches=8, total_timesteps=16 * 4 * 2)
+group_params = []
+for devices in (1, 4):
+    trainer = make_train(PointReach(), groups, updates_per_call=2, devices=devices)
+    state, _ = trainer.run(trainer.init(jax.random.key(1)), 2)
+    group_params.append(jax.tree.leaves(jax.device_get(state.params)))
+group_diff = max(float(np.abs(a - b).max()) for a, b in zip(*group_params))
 (s1, m1, e1, f1), (s4, m4, e4, f4) = results[1], results[4]
 params = jax.tree.leaves(s1.params), jax.tree.leaves(s4.params)
 param_diff = max(float(np.abs(a - b).max()) for a, b in zip(*params))
@@ -49,7 +57,8 @@ for devices, envs, minibatches in ((4, 6, 2), (4, 16, 128), (5, 16, 4)):
     except ValueError as e:
         errors.append(str(e))
 print(json.dumps({"devices": [e1, f1, e4, f4], "param_diff": param_diff, "obs_diff": obs_diff,
-                  "metric_diff": metric_diff, "errors": errors, "changed": changed}))
+                  "metric_diff": metric_diff, "errors": errors, "changed": changed,
+                  "group_diff": group_diff}))
 """
 
 
@@ -76,12 +85,15 @@ def test_sharded_training_matches_one_device(four_devices):
     assert r["param_diff"] < 1e-5, r
     assert r["obs_diff"] < 1e-5, r
     assert r["metric_diff"] < 1e-4, r
+    assert r["group_diff"] < 1e-5, r
 
 
 def test_invalid_device_combinations_are_clear_errors(four_devices):
     envs, minibatch, too_many = four_devices["errors"]
     assert envs is not None and "num_envs=6 is not divisible by the 4 devices" in envs
-    assert minibatch is not None and "minibatch size" in minibatch and "=2 is not" in minibatch
+    # 128 minibatches of 16 steps: 8 env groups, but only 4 envs per device
+    assert minibatch is not None and "8 groups of environments" in minibatch
+    assert "4 environments per device" in minibatch and "multiple of 8" in minibatch
     assert too_many is not None and "only 4 cpu device(s)" in too_many
 
 

@@ -14,7 +14,9 @@ One update, top to bottom:
      current policy's accuracy and whose state is then discarded ("probe");
   2. values of obs and of final_obs (pre-reset) -> GAE with truncation bootstrap (losses.py);
   3. `update_epochs` passes over the shuffled batch in `num_minibatches` Adam steps of the
-     clipped PPO loss (losses.py);
+     clipped PPO loss (losses.py); minibatches are stratified by environment (each holds
+     num_steps / num_minibatches random samples of every env when that divides), so that
+     over several devices each device trains on its own envs' samples (see sgd below);
   4. observation statistics merged with the rollout's observations (if normalize_obs); the
      rollout and the loss of this update both used the statistics from before it.
 
@@ -76,7 +78,7 @@ class Transition(NamedTuple):
 
 
 class Batch(NamedTuple):
-    """Flattened (B, ...) training data of one update."""
+    """Training data of one update: (T, N, ...) time-first, as the rollout made it."""
 
     obs: jax.Array
     action: jax.Array
@@ -133,12 +135,9 @@ def make_train(
     """PPO on `config.num_envs` copies of `env` (any env BatchedEnv can wrap), over
     `devices` devices (None or 0: all; see mara_mjx.sharding): environments, rollout and
     minibatches sharded along the env axis, parameters replicated, gradients averaged by
-    the all-reduce of the minibatch mean."""
+    one all-reduce per minibatch."""
     benv = BatchedEnv(env, config.num_envs, devices=devices)
     mesh = benv.mesh
-    sharding.check_divisible(
-        "minibatch size (num_envs * num_steps / num_minibatches)", config.minibatch_size, mesh
-    )
     network = make_network(config, benv.action_size)
     optimizer = make_optimizer(config)
     lr_at_update = make_lr_schedule(config)
@@ -221,33 +220,55 @@ def make_train(
             vf_coef=config.vf_coef,
             ent_coef=config.ent_coef,
             clip_value=config.clip_value,
-            normalize_advantages=config.normalize_advantages,
+            normalize_advantages=False,  # done per minibatch over all devices in sgd()
         )
 
-    def sgd(params: Any, opt_state: Any, stats: RunningStats | None, batch: Batch, key):
-        """update_epochs passes of num_minibatches Adam steps over the shuffled batch."""
+    # SGD runs per device on its own envs (stratified_minibatches); every device's share of
+    # envs must split evenly into the minibatches' env groups.
+    env_groups = math.lcm(config.num_minibatches, config.num_steps) // config.num_steps
+    n_devices = 1 if mesh is None else mesh.size
+    if (config.num_envs // n_devices) % env_groups:
+        raise ValueError(
+            f"num_minibatches={config.num_minibatches} with num_steps={config.num_steps} "
+            f"cuts each minibatch from {env_groups} groups of environments, so the "
+            f"{config.num_envs // n_devices} environments per device (num_envs="
+            f"{config.num_envs} over {n_devices} devices) must be a multiple of "
+            f"{env_groups}; choose num_minibatches dividing num_steps, more environments or "
+            "fewer devices (--devices)"
+        )
+
+    def local_sgd(params: Any, opt_state: Any, stats: RunningStats | None, batch: Batch, keys):
+        """update_epochs passes of num_minibatches Adam steps, on one device's shard of
+        the (T, N) batch; every mean over the minibatch is a pmean of equal-sized parts."""
 
         def minibatch_step(carry, mb: Batch):
             params, opt_state = carry
             grads, info = jax.grad(loss_fn, has_aux=True)(params, stats, mb)
+            grads = sharding.pmean(grads, mesh)
             updates, opt_state = optimizer.update(grads, opt_state, params)
             params = optax.apply_updates(params, updates)
             return (params, opt_state), (info, optax.tree.norm(grads))
 
-        def epoch(carry, key):
-            order = jax.random.permutation(key, config.batch_size)
-            minibatches = jax.tree.map(
-                lambda x: x[order].reshape(
-                    config.num_minibatches, config.minibatch_size, *x.shape[1:]
-                ),
-                batch,
-            )
-            minibatches = sharding.constrain(minibatches, mesh, axis=1)
+        def epoch(carry, env_keys: jax.Array):
+            T, M = config.num_steps, config.num_minibatches
+            order = jax.vmap(lambda k: jax.random.permutation(k, T))(env_keys).T  # (T, n)
+            minibatches = jax.tree.map(lambda x: stratified_minibatches(x, order, M), batch)
+            if config.normalize_advantages:  # over each whole minibatch, all devices
+                adv = minibatches.advantages
+                mean = sharding.pmean(adv.mean(axis=1), mesh)[:, None]
+                var = sharding.pmean(jnp.square(adv - mean).mean(axis=1), mesh)[:, None]
+                minibatches = minibatches._replace(advantages=(adv - mean) / (jnp.sqrt(var) + 1e-8))
             return jax.lax.scan(minibatch_step, carry, minibatches)
 
-        keys = jax.random.split(key, config.update_epochs)
         (params, opt_state), (info, grad_norm) = jax.lax.scan(epoch, (params, opt_state), keys)
-        return params, opt_state, info, grad_norm
+        return params, opt_state, sharding.pmean(info, mesh), grad_norm
+
+    def sgd(params: Any, opt_state: Any, stats: RunningStats | None, batch: Batch, key):
+        keys = jax.random.split(key, (config.update_epochs, config.num_envs))
+        per_device = sharding.map_envs(
+            local_sgd, mesh, in_axes=(None, None, None, 1, 1), out_axes=None
+        )
+        return per_device(params, opt_state, stats, batch, keys)
 
     # ------------------------------------------------------------------- update
     def update(state: RunnerState) -> tuple[RunnerState, dict[str, jax.Array]]:
@@ -267,14 +288,13 @@ def make_train(
             config.gamma,
             config.gae_lambda,
         )
-        flat = lambda x: x.reshape(config.batch_size, *x.shape[2:])  # noqa: E731
         batch = Batch(
-            obs=flat(traj.obs),
-            action=flat(traj.action),
-            log_prob=flat(traj.log_prob),
-            value=flat(value),
-            advantages=flat(advantages),
-            returns=flat(returns),
+            obs=traj.obs,
+            action=traj.action,
+            log_prob=traj.log_prob,
+            value=value,
+            advantages=advantages,
+            returns=returns,
         )
         params, opt_state, info, grad_norm = sgd(
             state.params, state.opt_state, stats, batch, sgd_key
@@ -332,6 +352,29 @@ def make_train(
         num_updates=config.num_updates,
         steps_per_update=config.batch_size,
     )
+
+
+def stratified_minibatches(x: jax.Array, order: jax.Array, num_minibatches: int) -> jax.Array:
+    """A (T, n, ...) batch of n environments cut into minibatches stratified by env.
+
+    order: (T, n), column j a permutation of env j's time steps (a new one every epoch).
+    After permuting, the rows are cut into gcd(M, T) blocks of consecutive rows and the
+    envs into M / gcd(M, T) groups (env j in group j % groups); a minibatch is one block
+    of one group. With M dividing T (the presets: one group) every minibatch holds T / M
+    random steps of every env. Which samples share a minibatch depends only on global env
+    indices (given that each device's share of envs is a multiple of the group count),
+    so devices can cut their own envs' shards and together form the global minibatches.
+
+    Returns (M, T * n / M, ...).
+    """
+    T, n = x.shape[:2]
+    M = num_minibatches
+    blocks = math.gcd(M, T)
+    groups = M // blocks
+    x = jnp.take_along_axis(x, order.reshape(order.shape + (1,) * (x.ndim - 2)), axis=0)
+    x = x.reshape(blocks, T // blocks, n // groups, groups, *x.shape[2:])
+    x = jnp.moveaxis(x, 3, 1)  # (blocks, groups, rows, envs of the group, ...)
+    return x.reshape(M, (T // blocks) * (n // groups), *x.shape[4:])
 
 
 def rollout_metrics(traj: Transition, done: jax.Array) -> dict[str, jax.Array]:
