@@ -7,8 +7,12 @@ Public API:
     Env.reset(key, params=None) -> EnvState;  Env.step(state, action) -> EnvState
     BatchedEnv(env, n)        vmap + auto-reset + episode statistics
     EnvConfig / EnvParams / EnvState / RewardParams
+
+Importing mara_mjx adds one CPU-only flag to XLA_FLAGS (mara_mjx/_xla.py): batched MJX
+runs about 100x faster on the CPU with XLA's older CPU fusion emitters.
 """
 
+import mara_mjx._xla  # noqa: F401  (first: XLA_FLAGS before anything can start JAX)
 import mara_mjx.gym  # noqa: F401  (registers the gymnasium ids mara_mjx/<task>-v0)
 from mara_mjx.envs import (
     BatchedEnv,
