@@ -282,7 +282,8 @@ def time_c_rollout(
 
 def peers_study(args: argparse.Namespace) -> list[dict[str, Any]]:
     """C MuJoCo vs MJX, same env counts, same run: the train driver's work (kinematics +
-    collision, `bench_cpeer`) and the real driver's (`mujoco.rollout`)."""
+    collision, `bench_cpeer`) and the real driver's (`mujoco.rollout`); `--drivers`
+    picks which."""
     import os
 
     from mara_mjx.bench_cpeer import KinematicsPool
@@ -306,14 +307,16 @@ def peers_study(args: argparse.Namespace) -> list[dict[str, Any]]:
             line += f"  MJX {mj['env_steps_per_s'] / 1e6:8.3f} M/s  MJX/C {ratio:.2f}x"
         print(line, flush=True)
 
-    pool = KinematicsPool(env.arm.mj_model, nthread)
-    try:
+    if "train" in args.drivers:
+        pool = KinematicsPool(env.arm.mj_model, nthread)
+        try:
+            for n in args.peer_sizes:
+                compare("train", n, pool.time(n, args.steps, args.repeats))
+        finally:
+            pool.close()
+    if "real" in args.drivers:
         for n in args.peer_sizes:
-            compare("train", n, pool.time(n, args.steps, args.repeats))
-    finally:
-        pool.close()
-    for n in args.peer_sizes:
-        compare("real", n, time_c_rollout(env, n, args.steps, args.repeats, nthread))
+            compare("real", n, time_c_rollout(env, n, args.steps, args.repeats, nthread))
     return records
 
 
