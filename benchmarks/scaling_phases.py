@@ -1,7 +1,7 @@
 """Where multi-device PPO time goes: rollout vs SGD, per device count (GPU profiling aid).
 
-For each device count n, the default preset at weak scaling (2048 envs x 32 steps per
-device) is timed with update_epochs = 1 and 4. One epoch of SGD costs
+For each device count n, the default preset at weak scaling (--per-device-envs, default
+2048, x 32 steps per device) is timed with update_epochs = 1 and 4. One epoch of SGD costs
 (t(4) - t(1)) / 3 and the rest of an update (rollout, GAE, statistics) t(1) - that, so
 their scaling efficiencies can be read apart:
 
@@ -46,6 +46,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--task", default="MARACollisionOrient")
     p.add_argument("--device-counts", type=int, nargs="+", default=[1, 2])
+    p.add_argument("--per-device-envs", type=int, default=2048)
     p.add_argument("--updates", type=int, default=10)
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument(
@@ -58,7 +59,7 @@ def main() -> None:
     for n in args.device_counts:
         t = {}
         for epochs in (4,) if args.no_split else (1, 4):
-            config = default.replace(num_envs=default.num_envs * n, update_epochs=epochs)
+            config = default.replace(num_envs=args.per_device_envs * n, update_epochs=epochs)
             t[epochs] = time_update(args.task, config, n, args.updates, args.repeats)
         t.setdefault(1, float("nan"))
         sgd_epoch = (t[4] - t[1]) / 3
@@ -69,7 +70,7 @@ def main() -> None:
             "sgd_epoch_s": sgd_epoch,
             "sgd_step_s": sgd_epoch / default.num_minibatches,
             "rest_s": t[1] - sgd_epoch,
-            "env_steps_per_s": default.batch_size * n / t[4],
+            "env_steps_per_s": args.per_device_envs * default.num_steps * n / t[4],
         }
         rows.append(row)
         print(json.dumps(row), flush=True)

@@ -15,8 +15,8 @@ ppo   our PPO (`make_train(..., devices=n)`, the default preset), weak scaling: 
 
 Scaling efficiency of n devices = rate(n) / (n rate(1)) for weak scaling, and the same
 formula for strong scaling (the ideal is n times faster on the same batch). Sharding is
-`mara_mjx.sharding`: environments and minibatches along one mesh axis, parameters
-replicated, gradients all-reduced by XLA.
+`mara_mjx.sharding`: environments along one mesh axis, parameters replicated, SGD per
+device on its own envs' samples with one gradient all-reduce per minibatch.
 """
 
 from __future__ import annotations

@@ -10,11 +10,12 @@ environment axis the GSPMD way (`constrain`: the single-device program plus anno
 XLA partitions it). PPO's SGD phase is written per device instead (`map_envs`, i.e.
 `jax.shard_map`): each device shuffles and splits *its own* environments' samples, so no
 sample crosses devices, and the only collectives are the ones written out with `pmean`:
-one gradient all-reduce per minibatch and the per-minibatch advantage statistics once
-per epoch (benchmarks/NOTES.md section 10 says why). Parameters and optimiser state are
-replicated and every device applies the same update. The split of samples into
-minibatches depends only on global environment indices, so N devices compute what one
-device computes on the same global batch, up to the order of floating-point reductions.
+one gradient all-reduce per minibatch (of one flat buffer) and the per-minibatch
+advantage statistics once per epoch (benchmarks/NOTES.md section 10 says why).
+Parameters and optimiser state are replicated and every device applies the same update.
+The split of samples into minibatches depends only on global environment indices, so N
+devices compute what one device computes on the same global batch, up to the order of
+floating-point reductions.
 JAX's random numbers are partitionable (the default `jax_threefry_partitionable`), so the
 same key gives the same numbers however the arrays are sharded.
 

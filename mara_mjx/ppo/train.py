@@ -35,6 +35,7 @@ import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
+from jax.flatten_util import ravel_pytree
 
 from mara_mjx import sharding
 from mara_mjx.envs.batched import BatchedEnv, BatchedState
@@ -244,7 +245,10 @@ def make_train(
         def minibatch_step(carry, mb: Batch):
             params, opt_state = carry
             grads, info = jax.grad(loss_fn, has_aux=True)(params, stats, mb)
-            grads = sharding.pmean(grads, mesh)
+            # One all-reduce of one flat buffer. The pytree (13 arrays) made one variadic
+            # all-reduce that cost ~36 us per step on 4 H200s instead of ~6 (NOTES s. 10).
+            flat, unravel = ravel_pytree(grads)
+            grads = unravel(sharding.pmean(flat, mesh))
             updates, opt_state = optimizer.update(grads, opt_state, params)
             params = optax.apply_updates(params, updates)
             return (params, opt_state), (info, optax.tree.norm(grads))
