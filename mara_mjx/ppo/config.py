@@ -71,7 +71,9 @@ class PPOConfig(_ConfigMixin):
     total_timesteps: int = 100_000_000
     """Training budget in env steps; updates = total_timesteps // (num_envs * num_steps)."""
     num_minibatches: int = 32
-    """Minibatches per epoch; must divide num_envs * num_steps."""
+    """Minibatches per epoch; must divide num_envs * num_steps. Minibatches are stratified
+    by env (each holds num_steps / num_minibatches random steps of every env when that
+    divides; ppo.train.stratified_minibatches)."""
     update_epochs: int = 10
     """Passes over each batch (reshuffled every pass)."""
     gamma: float = 0.99
