@@ -17,7 +17,7 @@ import pytest
 from mara_mjx import sharding
 
 SCRIPT = r"""
-import json, sys
+import json, re, sys
 import jax, numpy as np
 sys.path.insert(0, sys.argv[1])
 from test_ppo import PointReach, TOY_CONFIG
@@ -33,6 +33,11 @@ for devices in (1, 4):
     state, metrics = trainer.run(state, 3)
     results[devices] = (jax.device_get(state), jax.device_get(metrics), n_env,
                         len(state.env_state.obs.sharding.device_set))
+    if devices == 4:  # the SGD's gradient all-reduce: one flat buffer of every parameter
+        hlo = trainer.run.lower(state, 3).compile().as_text()
+        n_params = sum(x.size for x in jax.tree.leaves(state.params))
+        reduces = [l for l in hlo.splitlines() if re.search(r" all-reduce(-start)?\(", l)]
+        flat_grad = any(f"f32[{n_params}]" in l for l in reduces)
 # more minibatches than steps: minibatches cut from env groups (2 per device here)
 groups = config.replace(num_steps=4, num_minibatches=8, total_timesteps=16 * 4 * 2)
 group_params = []
@@ -58,7 +63,7 @@ for devices, envs, minibatches in ((4, 6, 2), (4, 16, 128), (5, 16, 4)):
         errors.append(str(e))
 print(json.dumps({"devices": [e1, f1, e4, f4], "param_diff": param_diff, "obs_diff": obs_diff,
                   "metric_diff": metric_diff, "errors": errors, "changed": changed,
-                  "group_diff": group_diff}))
+                  "group_diff": group_diff, "flat_grad": flat_grad}))
 """
 
 
@@ -86,6 +91,7 @@ def test_sharded_training_matches_one_device(four_devices):
     assert r["obs_diff"] < 1e-5, r
     assert r["metric_diff"] < 1e-4, r
     assert r["group_diff"] < 1e-5, r
+    assert r["flat_grad"], "the gradients are no longer all-reduced as one flat buffer"
 
 
 def test_invalid_device_combinations_are_clear_errors(four_devices):
