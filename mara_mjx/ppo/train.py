@@ -268,6 +268,8 @@ def make_train(
         return params, opt_state, sharding.pmean(info, mesh), grad_norm
 
     def sgd(params: Any, opt_state: Any, stats: RunningStats | None, batch: Batch, key):
+        """local_sgd on every device; a permutation key per (epoch, env), so the shuffle
+        is the same however the envs are spread over devices."""
         keys = jax.random.split(key, (config.update_epochs, config.num_envs))
         per_device = sharding.map_envs(
             local_sgd, mesh, in_axes=(None, None, None, 1, 1), out_axes=None
