@@ -16,6 +16,7 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 import functools  # noqa: E402
 
 import jax  # noqa: E402
+import jax.monitoring  # noqa: E402
 import pytest  # noqa: E402
 
 import mara_mjx  # noqa: E402
@@ -52,6 +53,23 @@ class Jitted:
         if self._vstep is None:
             self._vstep = jax.jit(max_traces(jax.vmap(self.env.step), n=1))
         return self._vstep
+
+
+_COMPILED: list[str] = []
+jax.monitoring.register_event_duration_secs_listener(
+    lambda event, _duration, **kw: (
+        _COMPILED.append(kw.get("fun_name", ""))
+        if event.endswith("backend_compile_duration")
+        else None
+    )
+)
+
+
+@pytest.fixture
+def compiled() -> list[str]:
+    """Names of the functions XLA compiles from now on (the list a test may clear)."""
+    _COMPILED.clear()
+    return _COMPILED
 
 
 _CACHE: dict[tuple, Jitted] = {}

@@ -18,7 +18,6 @@ from pathlib import Path
 
 import gymnasium
 import jax
-import jax.monitoring
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -209,17 +208,9 @@ def test_play_writes_a_video_as_a_user_runs_it(gl, run_dir, tmp_path):
     assert "| MARA (this policy) |" in proc.stdout
 
 
-COMPILED: list[str] = []
-jax.monitoring.register_event_duration_secs_listener(
-    lambda event, _duration, **kw: (
-        COMPILED.append(kw.get("fun_name", ""))
-        if event.endswith("backend_compile_duration")
-        else None
-    )
-)
-
-
-def test_bad_play_input_fails_fast_with_a_clear_message(run_dir, tmp_path, capsys, monkeypatch):
+def test_bad_play_input_fails_fast_with_a_clear_message(
+    run_dir, tmp_path, capsys, monkeypatch, compiled
+):
     garbage = tmp_path / "garbage.npz"
     garbage.write_bytes(b"PK\x03\x04 truncated zip")
     a_file = tmp_path / "file.txt"
@@ -243,13 +234,13 @@ def test_bad_play_input_fails_fast_with_a_clear_message(run_dir, tmp_path, capsy
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     for argv, message in cases:
-        COMPILED.clear()
+        compiled.clear()
         code = run_cli(play.main, play.PROG, argv)
         err = capsys.readouterr().err
         assert code == 2, (argv, err)
         assert message in err and err.startswith("mara_mjx.play: error:"), (argv, err)
         assert "Traceback" not in err
-        ours = [n for n in COMPILED if "lambda" in n or "reset" in n or "step" in n]
+        ours = [n for n in compiled if "lambda" in n or "reset" in n or "step" in n]
         assert not ours, (argv, ours)
     assert not (tmp_path / "out.gif").exists()
 

@@ -16,7 +16,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import jax.monitoring
 import numpy as np
 import pytest
 
@@ -201,15 +200,6 @@ def test_evaluate_cli_reproduces_the_training_evaluation(trained, cli_env, tmp_p
 
 # ---------------------------------------------------------------------- bad input
 
-COMPILED: list[str] = []
-jax.monitoring.register_event_duration_secs_listener(
-    lambda event, _duration, **kw: (
-        COMPILED.append(kw.get("fun_name", ""))
-        if event.endswith("backend_compile_duration")
-        else None
-    )
-)
-
 
 def _bad_train_inputs(tmp: Path, run: Path) -> list[tuple[list[str], str]]:
     not_a_folder = tmp / "file.txt"
@@ -237,20 +227,20 @@ def _bad_train_inputs(tmp: Path, run: Path) -> list[tuple[list[str], str]]:
     ]
 
 
-def test_bad_train_input_fails_fast_with_a_clear_message(trained, tmp_path, capsys):
+def test_bad_train_input_fails_fast_with_a_clear_message(trained, tmp_path, capsys, compiled):
     out, _ = trained
     for argv, message in _bad_train_inputs(tmp_path, out):
-        COMPILED.clear()
+        compiled.clear()
         code = run_cli(train_cli.main, train_cli.PROG, argv)
         err = capsys.readouterr().err
         assert code == 2, argv
         assert message in err and err.startswith("mara_mjx.train: error:"), (argv, err)
         assert "Traceback" not in err
-        ours = [n for n in COMPILED if n in ("jit(run)", "jit(init)", "jit(evaluate)")]
+        ours = [n for n in compiled if n in ("jit(run)", "jit(init)", "jit(evaluate)")]
         assert not ours, (argv, ours)
 
 
-def test_bad_evaluate_input_fails_fast_with_a_clear_message(trained, tmp_path, capsys):
+def test_bad_evaluate_input_fails_fast_with_a_clear_message(trained, tmp_path, capsys, compiled):
     out, _ = trained
     garbage = tmp_path / "garbage.npz"
     garbage.write_bytes(b"PK\x03\x04 truncated zip")
@@ -261,12 +251,12 @@ def test_bad_evaluate_input_fails_fast_with_a_clear_message(trained, tmp_path, c
         ([str(out), "--driver", "real", "--velocity", "9"], "velocity"),
     ]
     for argv, message in cases:
-        COMPILED.clear()
+        compiled.clear()
         code = run_cli(evaluate_cli.main, evaluate_cli.PROG, argv)
         err = capsys.readouterr().err
         assert code == 2 and message in err, (argv, err)
         assert err.startswith("mara_mjx.evaluate: error:") and "Traceback" not in err
-        assert "jit(evaluate)" not in COMPILED
+        assert "jit(evaluate)" not in compiled
 
 
 def test_unknown_env_as_a_user_sees_it(cli_env):
