@@ -30,6 +30,7 @@ from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table
 from mara_mjx.ppo.flags import (
     Section,
     UserError,
+    add_checkpoint_argument,
     add_flags,
     configure_jax,
     overrides,
@@ -51,11 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="The paper's accuracy table (spec section 7) for a PPO checkpoint.",
         allow_abbrev=False,
     )
-    parser.add_argument(
-        "checkpoint",
-        metavar="CHECKPOINT",
-        help="checkpoint file (.npz) or run folder (its newest checkpoint)",
-    )
+    add_checkpoint_argument(parser)
     parser.add_argument(
         "--json",
         metavar="PATH",

@@ -40,7 +40,15 @@ from mara_mjx.envs.base import EnvConfig
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo.config import EvalConfig
 from mara_mjx.ppo.evaluation import EvalResult, format_table
-from mara_mjx.ppo.flags import Section, UserError, add_flags, configure_jax, overrides, run_cli
+from mara_mjx.ppo.flags import (
+    Section,
+    UserError,
+    add_checkpoint_argument,
+    add_flags,
+    configure_jax,
+    overrides,
+    run_cli,
+)
 
 PROG = "mara_mjx.play"
 VIDEO_FORMATS = (".mp4", ".gif")
@@ -58,11 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
         "a video rendered offscreen (--video).",
         allow_abbrev=False,
     )
-    parser.add_argument(
-        "checkpoint",
-        metavar="CHECKPOINT",
-        help="checkpoint file (.npz) or run folder (its newest checkpoint)",
-    )
+    add_checkpoint_argument(parser)
     parser.add_argument(
         "-r",
         "--real-speed",

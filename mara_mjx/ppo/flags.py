@@ -91,6 +91,15 @@ def add_flags(parser: argparse.ArgumentParser, sections: Sequence[Section]) -> N
             )
 
 
+def add_checkpoint_argument(parser: argparse.ArgumentParser) -> None:
+    """The positional CHECKPOINT of the CLIs that load a policy (evaluate, play)."""
+    parser.add_argument(
+        "checkpoint",
+        metavar="CHECKPOINT",
+        help="checkpoint file (.npz) or run folder (its newest checkpoint)",
+    )
+
+
 def overrides(namespace: argparse.Namespace, section: str) -> dict[str, Any]:
     """{field: value} of the flags given for `section` (lists become tuples)."""
     prefix = f"{section}."
