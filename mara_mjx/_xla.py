@@ -1,12 +1,13 @@
 """A workaround for slow MJX on the CPU, applied when mara_mjx is imported.
 
 XLA's newer CPU fusion emitters compile the batched (vmapped) MJX kinematics of this arm
-into code about 100x slower than the older emitters: on a 2-core CPU with jaxlib 0.10.2,
-256 batched train-driver env steps take 0.24 s instead of 4 ms, and the whole PPO
-pipeline is slowed the same way (benchmarks/NOTES.md section 10; a known class of XLA
-CPU regression, cf. jax-ml/jax#33761). `--xla_cpu_use_fusion_emitters=false` restores
-the old emitters for CPU code only (GPU compilation ignores it) and leaves results
-unchanged. It is appended to XLA_FLAGS
+into far slower code than the older emitters: on a 2-core CPU with jaxlib 0.10.2, a
+batched train-driver env step of 256 envs takes 0.22 s instead of 4-6 ms
+(`benchmarks/cpu_step.py`, with and without the flag), and the whole PPO pipeline is
+slowed the same way (benchmarks/NOTES.md section 10; a known class of XLA CPU
+regression, cf. jax-ml/jax#33761).
+`--xla_cpu_use_fusion_emitters=false` restores the old emitters for CPU code only (GPU
+compilation ignores it) and leaves results unchanged. It is appended to XLA_FLAGS
 
 * only if XLA_FLAGS does not mention the flag already (set it there to choose yourself),
 * only for the jaxlib versions where the flag is known to exist (XLA aborts on unknown
