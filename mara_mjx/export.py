@@ -9,7 +9,9 @@
 
 What `policy(obs)` computes is what `mara_mjx.ppo.make_policy` computes (the
 deterministic Gaussian mean): z = clip((obs - mean) / sqrt(var + 1e-8), -obs_clip,
-obs_clip) when the run normalised observations (else z = obs), z[..., hidden_obs] = 0,
+obs_clip) when the run normalised observations (else z = obs), where obs first has its
+quaternion block obs[quat_index:quat_index + 4] multiplied by the sign of its w when the
+run used `canonical_quat` (quat_index >= 0 in the meta), z[..., hidden_obs] = 0,
 then the actor's tanh MLP (linear output layer), plus obs[..., :6] (the current joint
 positions) when the run used `relative_actions`. The action is an absolute joint target
 (rad) for motor1..motor6; the env clips it to the joint limits (`policy(obs, clip=True)`
@@ -23,6 +25,7 @@ File layout (`np.load(path)`; no pickles):
                        hidden_sizes, activation, normalize_obs, obs_clip, obs_var_eps,
                        relative_actions (add obs[..., :action_size] to the MLP output),
                        hidden_obs (indices set to 0 after normalisation),
+                       quat_index (-1, or where the sign-canonicalised quaternion starts),
                        observation_layout [{name, start, stop, units, description}],
                        action {joint_names, lower, upper, units, description},
                        source {checkpoint, update, env_steps}
@@ -133,6 +136,7 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
         "obs_var_eps": OBS_VAR_EPS,
         "relative_actions": bool(config.relative_actions),
         "hidden_obs": [int(i) for i in config.hidden_obs],
+        "quat_index": int(config.quat_index) if config.canonical_quat else -1,
         "observation_layout": observation_layout(orientation),
         "action": {
             "joint_names": list(JOINTS),
@@ -218,6 +222,11 @@ class NumpyPolicy:
                 f"got {x.shape}"
             )
         x = raw = x.astype(np.float64)
+        quat = int(self.meta.get("quat_index", -1))
+        if quat >= 0:  # canonical sign, w >= 0 (PPOConfig.canonical_quat)
+            x = x.copy()
+            sign = np.where(x[..., quat : quat + 1] < 0, -1.0, 1.0)
+            x[..., quat : quat + 4] *= sign
         if self.obs_mean is not None:
             clip_obs = float(self.meta["obs_clip"])
             x = (x - self.obs_mean) / np.sqrt(self.obs_var.astype(np.float64) + OBS_VAR_EPS)

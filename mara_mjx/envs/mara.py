@@ -107,7 +107,17 @@ class MaraEnv:
 
     @property
     def observation_size(self) -> int:
-        return 16 if self.task.orientation else 12
+        return self.observation_layout["v"][1]
+
+    @property
+    def observation_layout(self) -> dict[str, tuple[int, int]]:
+        """Observation part -> (start, stop) on the last axis: q, e, (quat_err,) v."""
+        sizes = [("q", 6), ("e", 3)] + ([("quat_err", 4)] if self.task.orientation else [])
+        layout, start = {}, 0
+        for name, size in [*sizes, ("v", 3)]:
+            layout[name] = (start, start + size)
+            start += size
+        return layout
 
     @property
     def action_size(self) -> int:

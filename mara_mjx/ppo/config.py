@@ -116,6 +116,21 @@ class PPOConfig(_ConfigMixin):
     hidden_obs: tuple[int, ...] = ()
     """Observation indices that neither network sees (set to 0 after normalisation), e.g.
     9 10 11 for the TCP velocity of MARA/MARACollision (13 14 15 for the Orient tasks)."""
+    canonical_quat: bool = False
+    """The networks read the observation's quaternion error (the env's `quat_err` block,
+    (w, x, y, z)) with its sign canonicalised to w >= 0 before normalisation. q and -q are
+    the same rotation; the env's quat_err flips between them at the goal of the Orient
+    tasks (the TCP quaternion is made w >= 0 and the target has w = 0), which flips the
+    sign of the rotation-error vector the policy must steer by (benchmarks/NOTES.md,
+    section 11). A re-encoding of the same observation, not a change of the env."""
+    quat_index: int = -1
+    """Where the quaternion block starts in the observation; set by `for_env` from the env's
+    `observation_layout` (make_train and the train CLI do it), -1 where the env has none."""
+    bound_coef: float = 0.0
+    """Weight of a loss that keeps the Gaussian mean inside the env's joint box:
+    bound_coef * E[sum_j relu(mean_j - upper_j)^2 + relu(lower_j - mean_j)^2] (rad^2).
+    The env clips actions to the joint limits, so a mean past a limit gets no gradient
+    from the PPO loss and its noise no longer explores (rl_games' bounds loss)."""
     normalize_obs: bool = False
     """Normalise observations by running mean and variance of the rollouts (Welford); the
     statistics are saved with the policy and applied by make_policy."""
@@ -188,7 +203,16 @@ class PPOConfig(_ConfigMixin):
             raise ValueError(
                 f"hidden_obs={self.hidden_obs!r} must be a tuple of observation indices >= 0"
             )
-        for name in ("clip_value", "normalize_obs", "normalize_advantages", "relative_actions"):
+        _check_range("bound_coef", self.bound_coef, 0.0, math.inf)
+        if not _is_int(self.quat_index) or self.quat_index < -1:
+            raise ValueError(f"quat_index must be an int >= -1, got {self.quat_index!r}")
+        for name in (
+            "clip_value",
+            "normalize_obs",
+            "normalize_advantages",
+            "relative_actions",
+            "canonical_quat",
+        ):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
 
@@ -205,6 +229,15 @@ class PPOConfig(_ConfigMixin):
     def num_updates(self) -> int:
         """PPO updates in the run: total_timesteps // batch_size (as baselines)."""
         return self.total_timesteps // self.batch_size
+
+
+def for_env(config: PPOConfig, env: Any) -> PPOConfig:
+    """`config` with the env-dependent fields resolved (`quat_index` from the env's
+    `observation_layout`, a dict name -> (start, stop); -1 where it has no quat_err)."""
+    layout = getattr(env, "observation_layout", None) or {}
+    block = layout.get("quat_err")
+    index = int(block[0]) if (config.canonical_quat and block is not None) else -1
+    return config if index == config.quat_index else config.replace(quat_index=index)
 
 
 @dataclasses.dataclass(frozen=True)

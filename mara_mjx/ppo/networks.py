@@ -51,6 +51,7 @@ class ActorCritic(nn.Module):
     relative_actions: bool = False
     log_std_floor: float = -20.0
     hidden_obs: tuple[int, ...] = ()
+    quat_index: int = -1
 
     @nn.compact
     def __call__(
@@ -73,6 +74,16 @@ class ActorCritic(nn.Module):
         return mean, jnp.broadcast_to(log_std, mean.shape), value
 
 
+def canonical_quat(obs: jax.Array, index: int) -> jax.Array:
+    """obs with the (w, x, y, z) block at `index` multiplied by the sign of its w (w >= 0;
+    w = 0 counts as positive); identity when index < 0. Same rotation, continuous error."""
+    if index < 0:
+        return obs
+    quat = obs[..., index : index + 4]
+    sign = jnp.where(quat[..., :1] < 0, -1.0, 1.0).astype(obs.dtype)
+    return obs.at[..., index : index + 4].set(quat * sign)
+
+
 def make_network(config: Any, action_size: int) -> ActorCritic:
     """The ActorCritic a PPOConfig describes (the one constructor: training, policies and
     checkpoints all build it here)."""
@@ -83,14 +94,17 @@ def make_network(config: Any, action_size: int) -> ActorCritic:
         config.relative_actions,
         config.log_std_floor,
         tuple(config.hidden_obs),
+        config.quat_index if config.canonical_quat else -1,
     )
 
 
 def forward(
     network: ActorCritic, params: Any, stats: RunningStats | None, obs: jax.Array, clip: float
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """Raw obs (..., obs_size) -> (mean, log_std, value): normalise, then the network."""
-    return network.apply(params, normalize(stats, obs, clip), obs)
+    """Raw obs (..., obs_size) -> (mean, log_std, value): canonicalise the quaternion
+    block (if the network has one), normalise, then the network."""
+    features = canonical_quat(obs, network.quat_index)
+    return network.apply(params, normalize(stats, features, clip), obs)
 
 
 def gaussian_log_prob(mean: jax.Array, log_std: jax.Array, action: jax.Array) -> jax.Array:

@@ -39,11 +39,12 @@ from jax.flatten_util import ravel_pytree
 
 from mara_mjx import sharding
 from mara_mjx.envs.batched import BatchedEnv, BatchedState
-from mara_mjx.ppo.config import PPOConfig
+from mara_mjx.ppo.config import PPOConfig, for_env
 from mara_mjx.ppo.losses import gae, ppo_loss
 from mara_mjx.ppo.networks import (
     ActorCritic,
     RunningStats,
+    canonical_quat,
     forward,
     gaussian_entropy,
     gaussian_log_prob,
@@ -137,6 +138,7 @@ def make_train(
     `devices` devices (None or 0: all; see mara_mjx.sharding): environments, rollout and
     minibatches sharded along the env axis, parameters replicated, gradients averaged by
     one all-reduce per minibatch."""
+    config = for_env(config, env)
     benv = BatchedEnv(env, config.num_envs, devices=devices)
     mesh = benv.mesh
     network = make_network(config, benv.action_size)
@@ -207,9 +209,12 @@ def make_train(
         return env_state, traj, probe_metrics
 
     # ---------------------------------------------------------------------- SGD
+    lower = jnp.asarray(getattr(env, "joint_lower", -jnp.inf), jnp.float32)
+    upper = jnp.asarray(getattr(env, "joint_upper", jnp.inf), jnp.float32)
+
     def loss_fn(params: Any, stats: RunningStats | None, mb: Batch):
         mean, log_std, value = policy(params, stats, mb.obs)
-        return ppo_loss(
+        total, info = ppo_loss(
             gaussian_log_prob(mean, log_std, mb.action),
             value,
             gaussian_entropy(log_std),
@@ -223,6 +228,10 @@ def make_train(
             clip_value=config.clip_value,
             normalize_advantages=False,  # done per minibatch over all devices in sgd()
         )
+        if config.bound_coef > 0.0:  # keep the mean where the env does not clip it
+            excess = jax.nn.relu(mean - upper) + jax.nn.relu(lower - mean)
+            total = total + config.bound_coef * jnp.mean(jnp.sum(jnp.square(excess), axis=-1))
+        return total, info
 
     # SGD runs per device on its own envs (stratified_minibatches); every device's share of
     # envs must split evenly into the minibatches' env groups.
@@ -307,7 +316,7 @@ def make_train(
         )
         obs_stats = state.obs_stats
         if config.normalize_obs:
-            obs_stats = update_stats(obs_stats, traj.obs)
+            obs_stats = update_stats(obs_stats, canonical_quat(traj.obs, network.quat_index))
 
         metrics = {
             **rollout_metrics(traj, done),
@@ -358,6 +367,52 @@ def make_train(
         num_updates=config.num_updates,
         steps_per_update=config.batch_size,
     )
+
+
+class SeedTrainer(NamedTuple):
+    """`num_seeds` independent runs of one Trainer in one jitted program (vmap over a
+    leading seed axis of the RunnerState; seed axis sharded over the devices when there
+    are several and they divide it). Seed i uses key(seeds[i]), as a single run with
+    PPOConfig.seed = seeds[i] does, so its results match that run up to floating-point
+    reduction order."""
+
+    trainer: Trainer
+    seeds: tuple[int, ...]
+    init: Callable[[], RunnerState]
+    run: Callable[[RunnerState, int], tuple[RunnerState, dict[str, jax.Array]]]
+
+
+def make_seed_trainer(trainer: Trainer, seeds: tuple[int, ...]) -> SeedTrainer:
+    """Vmap `trainer` over `seeds`. The trainer must use one device for its envs (the
+    devices go to the seeds instead)."""
+    if trainer.env.mesh is not None:
+        raise ValueError(
+            "several seeds in one run spread the seeds over the devices, not the envs: "
+            "build the trainer with devices=1"
+        )
+    seeds = tuple(int(s) for s in seeds)
+    n_dev = jax.device_count()
+    sharding_ = None
+    if n_dev > 1 and len(seeds) % n_dev == 0:
+        mesh = jax.sharding.Mesh(jax.devices(), ("seeds",))
+        sharding_ = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("seeds"))
+
+    def init_all() -> RunnerState:
+        keys = jnp.stack([jax.random.key(s) for s in seeds])
+        return jax.vmap(trainer.init)(keys)
+
+    run_all = jax.vmap(trainer.run, in_axes=(0, None))
+    if sharding_ is None:
+        init, run = jax.jit(init_all), jax.jit(run_all)
+    else:
+        init = jax.jit(init_all, out_shardings=sharding_)
+        run = jax.jit(run_all, in_shardings=(sharding_, None), out_shardings=sharding_)
+    return SeedTrainer(trainer=trainer, seeds=seeds, init=init, run=run)
+
+
+def take_seed(tree: Any, i: int) -> Any:
+    """Seed i's slice of a seed-batched pytree (RunnerState or metrics)."""
+    return jax.tree.map(lambda x: x[i], tree)
 
 
 def stratified_minibatches(x: jax.Array, order: jax.Array, num_minibatches: int) -> jax.Array:

@@ -1,0 +1,218 @@
+"""Orientation study (issue 11): why the Orient policies settle off the target pose, and
+which trainer-side changes fix it. Several seeds of each (task, variant) train in one
+vmapped program (ppo.train.make_seed_trainer); every `--chunk` updates a deterministic
+probe records, per seed, where the policy takes the arm:
+
+    q_final          (6,) joint positions after `--probe-steps` deterministic steps from reset
+    position_mm      (3,) |e| per axis there; orientation_deg (3,) |roll, pitch, yaw| of quat_err
+    collide_frac     fraction of the probe's last half of steps that collided
+    excess_rad       (6,) mean over those steps of how far the Gaussian mean lies past the
+                     joint limits (the env clips it: no gradient, no exploration there)
+    at_limit         (6,) fraction of those steps with the clipped action at a limit
+    w_flips          sign changes of quat_err's w along the probe's last half
+    log_std          (6,) the policy's log standard deviation
+
+and at the end the paper's evaluation per seed (10 episodes, 5 mm stop) and the hold
+(run to the horizon, error at the last step).
+
+    python benchmarks/orientation_study.py --tasks MARAOrient MARACollisionOrient \
+        --seeds 0 1 2 3 --variants baseline quat bound quat_bound --out study.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import mara_mjx
+from mara_mjx.ppo.config import PRESETS, EvalConfig
+from mara_mjx.ppo.evaluation import make_evaluate
+from mara_mjx.ppo.policy import make_policy
+from mara_mjx.ppo.train import make_seed_trainer, make_train
+
+VARIANTS = {
+    "baseline": {},
+    "quat": {"canonical_quat": True},
+    "bound": {"bound_coef": 1.0},
+    "quat_bound": {"canonical_quat": True, "bound_coef": 1.0},
+}
+
+
+def parse_variant(name: str) -> dict:
+    """A name from VARIANTS, or 'key=value,key=value' PPOConfig overrides (JSON values)."""
+    if name in VARIANTS:
+        return VARIANTS[name]
+    out = {}
+    for part in name.split(","):
+        k, v = part.split("=", 1)
+        out[k] = json.loads(v)
+    return out
+
+
+def make_probe(env, probe_steps: int, episodes: int = 4):
+    lower, upper = jnp.asarray(env.joint_lower), jnp.asarray(env.joint_upper)
+    params = env.make_params(reset_noise=0.02)
+    keys = jax.random.split(jax.random.key(12345), episodes)
+    quat = getattr(env, "observation_layout", {}).get("quat_err")
+
+    def probe(policy):
+        state = jax.vmap(env.reset, in_axes=(0, None))(keys, params)
+
+        def body(state, _):
+            mean = policy(state.obs)
+            nxt = jax.vmap(env.step)(state, mean)
+            clipped = jnp.clip(mean, lower, upper)
+            rec = {
+                "collided": nxt.metrics["collided"].astype(jnp.float32),
+                "excess": jax.nn.relu(mean - upper) + jax.nn.relu(lower - mean),
+                "at_limit": ((clipped <= lower + 1e-4) | (clipped >= upper - 1e-4)).astype(
+                    jnp.float32
+                ),
+                "w": nxt.obs[:, quat[0]] if quat else jnp.zeros(episodes),
+            }
+            return nxt, rec
+
+        state, rec = jax.lax.scan(body, state, None, probe_steps)
+        half = probe_steps // 2
+        tail = jax.tree.map(lambda x: x[half:], rec)
+        w_sign = jnp.sign(tail["w"])
+        return {
+            "q_final": state.obs[:, :6].mean(0),
+            "position_mm": 1000 * state.metrics["position_error"].mean(0),
+            "orientation_deg": jnp.degrees(state.metrics["orientation_error"]).mean(0),
+            "collide_frac": tail["collided"].mean(),
+            "excess_rad": tail["excess"].mean((0, 1)),
+            "at_limit": tail["at_limit"].mean((0, 1)),
+            "w_flips": jnp.sum(w_sign[1:] != w_sign[:-1], axis=0).mean().astype(jnp.float32),
+        }
+
+    return probe
+
+
+def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
+    t0 = time.monotonic()
+    env = mara_mjx.make(task)
+    overrides = parse_variant(variant)
+    sizes = {"num_envs": 16, "num_steps": 8, "num_minibatches": 4} if args.tiny else {}
+    if args.total_timesteps:
+        sizes["total_timesteps"] = args.total_timesteps
+    config = PRESETS["default"].replace(**sizes, **overrides)
+    trainer = make_train(env, config, updates_per_call=args.chunk, devices=1)
+    config = trainer.config
+    st = make_seed_trainer(trainer, seeds)
+    probe = jax.jit(jax.vmap(make_probe(env, args.probe_steps)))
+    ev = make_evaluate(env, EvalConfig())
+    hold = make_evaluate(env, EvalConfig(tolerance_mm=0.0))
+    ev_all, hold_all = jax.jit(jax.vmap(ev)), jax.jit(jax.vmap(hold))
+
+    state = st.init()
+    done, timeline, det = 0, [], []
+    first = {}
+    while done < trainer.num_updates:
+        n = min(args.chunk, trainer.num_updates - done)
+        state, metrics = st.run(state, n)
+        metrics = jax.device_get(metrics)
+        done += n
+        now = time.monotonic() - t0
+        det_err = np.asarray(metrics["det_error_mm"])[:, :n]  # (S, n)
+        det.append(det_err)
+        for thr in (5.0, 1.0):
+            for i, s in enumerate(seeds):
+                if (thr, s) not in first and np.nanmin(det_err[i]) < thr:
+                    first[(thr, s)] = {"time_s": now, "update": done}
+        policy = make_policy(state, config)
+        p = jax.device_get(probe(policy))
+        log_std = np.asarray(state.params["params"]["log_std"])
+        timeline.append(
+            {
+                "update": done,
+                "env_steps": done * trainer.steps_per_update,
+                "time_s": now,
+                **{k: np.asarray(v).tolist() for k, v in p.items()},
+                "log_std": log_std.tolist(),
+                "entropy": np.asarray(metrics["entropy"])[:, n - 1].tolist(),
+            }
+        )
+    train_s = time.monotonic() - t0
+    policy = make_policy(state, config)
+    evals = jax.device_get(ev_all(policy))
+    holds = jax.device_get(hold_all(policy))
+    per_seed = []
+    for i, s in enumerate(seeds):
+        per_seed.append(
+            {
+                "seed": s,
+                "position_mm": np.mean(evals["position_error_mm"][i], 0).tolist(),
+                "orientation_deg": np.mean(evals["orientation_error_deg"][i], 0).tolist(),
+                "reached": int(np.sum(evals["reached"][i])),
+                "collisions": float(np.mean(evals["collisions"][i])),
+                "hold_position_mm": np.mean(holds["position_error_mm"][i], 0).tolist(),
+                "hold_orientation_deg": np.mean(holds["orientation_error_deg"][i], 0).tolist(),
+                "hold_collisions_per_episode": float(np.mean(holds["collisions"][i])),
+                "time_to_5mm_s": first.get((5.0, s), {}).get("time_s"),
+                "time_to_1mm_s": first.get((1.0, s), {}).get("time_s"),
+            }
+        )
+    out = {
+        "task": task,
+        "variant": variant,
+        "overrides": overrides,
+        "config": config.to_dict(),
+        "seeds": list(seeds),
+        "train_s": train_s,
+        "env_steps_per_s": len(seeds) * trainer.num_updates * trainer.steps_per_update / train_s,
+        "per_seed": per_seed,
+        "timeline": timeline,
+    }
+    print(f"== {task} {variant}: {train_s:.0f} s", flush=True)
+    for r in per_seed:
+        print(
+            f"  seed {r['seed']}: pos {np.round(r['position_mm'], 2).tolist()} mm, "
+            f"ori {np.round(r['orientation_deg'], 2).tolist()} deg, reached {r['reached']}/10, "
+            f"hold ori {np.round(r['hold_orientation_deg'], 2).tolist()}, "
+            f"coll/ep {r['hold_collisions_per_episode']:.0f}, 1mm at {r['time_to_1mm_s']}",
+            flush=True,
+        )
+    last = timeline[-1]
+    print(f"  excess {np.round(last['excess_rad'], 3).tolist()}", flush=True)
+    print(f"  at_limit {np.round(last['at_limit'], 2).tolist()}", flush=True)
+    print(f"  w_flips {last['w_flips']}, collide {np.round(last['collide_frac'], 2).tolist()}")
+    return out
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--tasks", nargs="+", default=["MARAOrient", "MARACollisionOrient"])
+    p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3])
+    p.add_argument("--variants", nargs="+", default=list(VARIANTS))
+    p.add_argument("--total-timesteps", type=int, default=0)
+    p.add_argument("--chunk", type=int, default=20)
+    p.add_argument("--probe-steps", type=int, default=60)
+    p.add_argument("--tiny", action="store_true", help="CPU smoke test sizes")
+    p.add_argument("--out", default="orientation_study.json")
+    args = p.parse_args()
+    results = []
+    for task in args.tasks:
+        for variant in args.variants:
+            results.append(study(task, variant, tuple(args.seeds), args))
+            with open(args.out, "w") as f:
+                json.dump(
+                    {
+                        "command": "python benchmarks/orientation_study.py "
+                        + " ".join(os.sys.argv[1:]),
+                        "device": str(jax.devices()[0]),
+                        "jax": jax.__version__,
+                        "results": results,
+                    },
+                    f,
+                )
+
+
+if __name__ == "__main__":
+    main()
