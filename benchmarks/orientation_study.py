@@ -37,19 +37,69 @@ from mara_mjx.ppo.policy import make_policy
 from mara_mjx.ppo.train import make_seed_trainer, make_train
 
 VARIANTS = {
-    "baseline": {},
-    "quat": {"canonical_quat": True},
-    "bound": {"bound_coef": 1.0},
-    "quat_bound": {"canonical_quat": True, "bound_coef": 1.0},
+    "default": {},  # the current default preset
+    # the default preset before the orientation fixes (commit c6cf3b4)
+    "baseline": {
+        "init_log_std": 0.0,
+        "canonical_quat": False,
+        "bound_coef": 0.0,
+        "train_collision_penalty": 0.0,
+    },
+    "quat": {"canonical_quat": True, "bound_coef": 0.0, "train_collision_penalty": 0.0,
+             "init_log_std": 0.0},
+    "bound": {"bound_coef": 1.0, "canonical_quat": False, "train_collision_penalty": 0.0,
+              "init_log_std": 0.0},
+    "quat_bound": {"canonical_quat": True, "bound_coef": 1.0, "train_collision_penalty": 0.0,
+                   "init_log_std": 0.0},
+    # orientation weighted more during the first half of training, then the env's reward
+    "curr_half": {
+        "canonical_quat": True,
+        "bound_coef": 1.0,
+        "train_reward": "beta=0.5,gamma=0.1",
+        "train_reward_until": 0.5,
+        "train_collision_penalty": 0.0,
+        "init_log_std": 0.0,
+    },
+    "curr_full": {
+        "canonical_quat": True,
+        "bound_coef": 1.0,
+        "train_reward": "beta=0.5,gamma=0.1",
+        "train_reward_until": 1.0,
+        "train_collision_penalty": 0.0,
+        "init_log_std": 0.0,
+    },
+    # collisions penalised (as in the Collision tasks) during the first half of training
+    "coll_half": {
+        "canonical_quat": True,
+        "bound_coef": 1.0,
+        "train_collision_penalty": 1.0,
+        "train_reward_until": 0.5,
+        "init_log_std": 0.0,
+    },
+    "coll_half_std": {
+        "canonical_quat": True,
+        "bound_coef": 1.0,
+        "train_collision_penalty": 1.0,
+        "train_reward_until": 0.5,
+        "init_log_std": -1.0,
+    },
+    "curr_half_nobound": {
+        "canonical_quat": True,
+        "bound_coef": 0.0,
+        "train_collision_penalty": 0.0,
+        "init_log_std": 0.0,
+        "train_reward": "beta=0.5,gamma=0.1",
+        "train_reward_until": 0.5,
+    },
 }
 
 
 def parse_variant(name: str) -> dict:
-    """A name from VARIANTS, or 'key=value,key=value' PPOConfig overrides (JSON values)."""
+    """A name from VARIANTS, or 'key=value;key=value' PPOConfig overrides (JSON values)."""
     if name in VARIANTS:
         return VARIANTS[name]
     out = {}
-    for part in name.split(","):
+    for part in name.split(";"):
         k, v = part.split("=", 1)
         out[k] = json.loads(v)
     return out

@@ -131,6 +131,19 @@ class PPOConfig(_ConfigMixin):
     bound_coef * E[sum_j relu(mean_j - upper_j)^2 + relu(lower_j - mean_j)^2] (rad^2).
     The env clips actions to the joint limits, so a mean past a limit gets no gradient
     from the PPO loss and its noise no longer explores (rl_games' bounds loss)."""
+    train_reward: str = ""
+    """Curriculum over the env's reward hyperparameters during training only, e.g.
+    'beta=0.5,gamma=0.1': the rollouts start with these values and move linearly to the
+    env's own by `train_reward_until` of the updates (the evaluation always uses the env's
+    own reward). '' is off. Names: the fields of mara_mjx.rewards.RewardParams."""
+    train_reward_until: float = 0.5
+    """Fraction of the updates after which `train_reward` has reached the env's values
+    (and `train_collision_penalty` has reached 0)."""
+    train_collision_penalty: float = 0.0
+    """Training only: subtract this times the spec's collision penalty C (delta (2 min(d,
+    0.5))^eta, the env's delta and eta) from every colliding step's reward, moving linearly
+    to 0 by `train_reward_until` of the updates; on top of the env's own penalty where the
+    task has one. 0 is off."""
     normalize_obs: bool = False
     """Normalise observations by running mean and variance of the rollouts (Welford); the
     statistics are saved with the policy and applied by make_policy."""
@@ -204,6 +217,9 @@ class PPOConfig(_ConfigMixin):
                 f"hidden_obs={self.hidden_obs!r} must be a tuple of observation indices >= 0"
             )
         _check_range("bound_coef", self.bound_coef, 0.0, math.inf)
+        _check_range("train_reward_until", self.train_reward_until, 0.0, 1.0, low_open=True)
+        _check_range("train_collision_penalty", self.train_collision_penalty, 0.0, math.inf)
+        reward_curriculum(self.train_reward)
         if not _is_int(self.quat_index) or self.quat_index < -1:
             raise ValueError(f"quat_index must be an int >= -1, got {self.quat_index!r}")
         for name in (
@@ -229,6 +245,31 @@ class PPOConfig(_ConfigMixin):
     def num_updates(self) -> int:
         """PPO updates in the run: total_timesteps // batch_size (as baselines)."""
         return self.total_timesteps // self.batch_size
+
+
+def reward_curriculum(text: str) -> dict[str, float]:
+    """'beta=0.5,gamma=0.1' -> {'beta': 0.5, 'gamma': 0.1}; ValueError naming the problem."""
+    from mara_mjx.rewards import RewardParams
+
+    if not isinstance(text, str):
+        raise ValueError(f"train_reward must be a string such as 'beta=0.5', got {text!r}")
+    valid = [f.name for f in dataclasses.fields(RewardParams)]
+    out: dict[str, float] = {}
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        name, sep, value = part.partition("=")
+        name = name.strip()
+        if not sep or name not in valid:
+            raise ValueError(
+                f"train_reward: {part!r} is not NAME=VALUE with NAME one of {valid}"
+            )
+        try:
+            number = float(value)
+        except ValueError:
+            raise ValueError(f"train_reward: {name}={value!r} is not a number") from None
+        if not math.isfinite(number) or number < 0:
+            raise ValueError(f"train_reward: {name}={value!r} must be a finite number >= 0")
+        out[name] = number
+    return out
 
 
 def for_env(config: PPOConfig, env: Any) -> PPOConfig:
@@ -357,6 +398,15 @@ PRESETS: dict[str, PPOConfig] = {
         reward_scale=0.01,
         relative_actions=True,
         log_std_floor=-4.6,
+        # The orientation fixes (benchmarks/NOTES.md, section 11): collisions penalised
+        # during the first half of training so that no seed commits to a colliding,
+        # joint-limit-saturated posture; the mean kept inside the joint box; the
+        # quaternion error read with a canonical sign; a narrower initial noise.
+        init_log_std=-1.0,
+        canonical_quat=True,
+        bound_coef=1.0,
+        train_collision_penalty=1.0,
+        train_reward_until=0.5,
     ),
     # The paper's appendix: baselines ppo2, one environment (spec section 7).
     "paper": PPOConfig(),

@@ -39,8 +39,9 @@ from jax.flatten_util import ravel_pytree
 
 from mara_mjx import sharding
 from mara_mjx.envs.batched import BatchedEnv, BatchedState
-from mara_mjx.ppo.config import PPOConfig, for_env
+from mara_mjx.ppo.config import PPOConfig, for_env, reward_curriculum
 from mara_mjx.ppo.losses import gae, ppo_loss
+from mara_mjx.rewards import collision_penalty
 from mara_mjx.ppo.networks import (
     ActorCritic,
     RunningStats,
@@ -150,6 +151,26 @@ def make_train(
             f"hidden_obs={config.hidden_obs} names entries beyond the observation of "
             f"{obs_size} values (valid indices 0..{obs_size - 1})"
         )
+
+    curriculum = reward_curriculum(config.train_reward)
+    until = max(1.0, config.train_reward_until * config.num_updates)
+
+    def with_train_reward(env_state: BatchedState, update: jax.Array) -> BatchedState:
+        """The rollout's reward hyperparameters: `train_reward` moving linearly to the
+        env's own over the first train_reward_until of the updates (PPOConfig)."""
+        if not curriculum:
+            return env_state
+        frac = jnp.clip(update.astype(jnp.float32) / until, 0.0, 1.0)
+        params = env_state.env_state.params
+        own = benv.env.default_params.reward
+        reward = params.reward.replace(
+            **{
+                k: jnp.full_like(getattr(params.reward, k), v + frac * (getattr(own, k) - v))
+                for k, v in curriculum.items()
+            }
+        )
+        inner = env_state.env_state.replace(params=params.replace(reward=reward))
+        return env_state.replace(env_state=inner)
 
     def stats_in_use(state: RunnerState) -> RunningStats | None:
         return state.obs_stats if config.normalize_obs else None
@@ -289,14 +310,23 @@ def make_train(
     def update(state: RunnerState) -> tuple[RunnerState, dict[str, jax.Array]]:
         key, rollout_key, sgd_key = jax.random.split(state.key, 3)
         stats = stats_in_use(state)
-        env_state, traj, probe = rollout(state.params, stats, state.env_state, rollout_key)
+        env_state = with_train_reward(state.env_state, state.update)
+        env_state, traj, probe = rollout(state.params, stats, env_state, rollout_key)
 
+        reward = traj.reward
+        if config.train_collision_penalty > 0.0 and "collided" in traj.metrics:
+            frac = jnp.clip(state.update.astype(jnp.float32) / until, 0.0, 1.0)
+            own = env_state.env_state.params.reward  # (N,) leaves
+            penalty = collision_penalty(
+                traj.metrics["distance"], traj.metrics["collided"], own.delta, own.eta
+            )
+            reward = reward - (1.0 - frac) * config.train_collision_penalty * penalty
         _, _, value = policy(state.params, stats, traj.obs)
         _, _, final_value = policy(state.params, stats, traj.final_obs)
         next_value = final_value * (1.0 - traj.terminated.astype(jnp.float32))
         done = traj.terminated | traj.truncated
         advantages, returns = gae(
-            traj.reward * config.reward_scale,
+            reward * config.reward_scale,
             value,
             next_value,
             done,
