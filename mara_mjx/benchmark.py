@@ -52,7 +52,8 @@ scaling  env steps/s of the batched step and of PPO against the number of device
         (`mara_mjx/bench_scaling.py`). The other studies use every device the machine
         has (`BatchedEnv`'s default), so on a multi-GPU host their numbers are per host.
 
-Output: a table on the terminal, and in `--out` (default benchmarks/results/):
+Output: a table on the terminal, and in `--out` (default runs/benchmarks/ under the working
+directory; the recorded results are in benchmarks/results/):
   <study>.json (records + device, versions, settings, command), <study>.md, <study>.png.
 `--quick` runs tiny sizes for a CPU smoke test. Matmuls run in float32 at HIGHEST
 precision; XLA's non-deterministic (faster) GPU ops are used unless `--deterministic`.
@@ -81,7 +82,10 @@ from mara_mjx.plots import finish_figure
 from mara_mjx.ppo import PRESETS
 from mara_mjx.ppo.flags import configure_jax
 
-DEFAULT_OUT = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
+# Relative to the working directory, never the package folder: a plain install must not
+# write into site-packages, and a quick CPU run in a checkout must not replace the recorded
+# results in benchmarks/results/ (name that folder with --out to update them).
+DEFAULT_OUT = Path("runs") / "benchmarks"
 
 
 def versions() -> dict[str, str]:
@@ -584,7 +588,22 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         probe.unlink()
     except OSError as e:
         p.error(f"output folder {args.out} is not writable: {e}")
+    if args.quick and not recorded_quick(args.out / f"{args.study}.json"):
+        p.error(
+            f"{args.out / (args.study + '.json')} holds a full (not --quick) run; a --quick "
+            "smoke run does not replace it: choose another --out"
+        )
     return args
+
+
+def recorded_quick(path: Path) -> bool:
+    """True if `path` (a study's JSON) does not exist or was itself a --quick run."""
+    if not path.exists():
+        return True
+    try:
+        return bool(json.loads(path.read_text()).get("config", {}).get("quick"))
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 def configure(deterministic: bool) -> dict[str, str]:

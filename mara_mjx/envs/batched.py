@@ -83,9 +83,18 @@ class BatchedEnv:
         return self.env.action_size
 
     def reset(self, key: jax.Array, params: EnvParams | None = None) -> BatchedState:
-        """Reset all environments. `params`: None (env defaults), one EnvParams shared by
-        all, or an EnvParams with a leading (N,) axis (per-environment values)."""
-        keys = jax.random.split(key, self.num_envs)
+        """Reset all environments. `key`: one PRNG key (split into N) or N keys, shape
+        (N,), one per environment. `params`: None (env defaults), one EnvParams shared
+        by all, or an EnvParams with a leading (N,) axis (per-environment values)."""
+        typed = jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
+        if typed and key.shape == (self.num_envs,):
+            keys = key
+        elif typed and key.shape != ():
+            raise ValueError(
+                f"key must be one PRNG key or {self.num_envs} keys, got shape {key.shape}"
+            )
+        else:  # one typed key, or one raw uint32 key (jax.random.PRNGKey)
+            keys = jax.random.split(key, self.num_envs)
         params = self._batch_params(params)
         s = self._reset(keys, params)
         zeros = jnp.zeros(self.num_envs)
