@@ -82,20 +82,26 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
     its newest checkpoint) to `out_path` (.npz), atomically. Raises ExportError (or
     mara_mjx.ppo.CheckpointError, also a ValueError) with what is wrong."""
     import mara_mjx
+    from mara_mjx import runs
     from mara_mjx.envs.arm import JOINTS
     from mara_mjx.ppo import checkpoint as ckpt
+    from mara_mjx.ppo import policy as policy_io
 
     out_path = Path(out_path)
     if out_path.suffix != ".npz":
         raise ExportError(f"output {str(out_path)!r} must end in .npz")
+    try:
+        runs.check_not_checkpoint(out_path, "export output")
+    except ValueError as e:
+        raise ExportError(str(e)) from e
     source = ckpt.find_checkpoint(checkpoint)
     arrays, meta = ckpt.load_checkpoint(source)
-    policy = ckpt.policy_from_checkpoint(arrays, meta)
+    policy = policy_io.policy_from_checkpoint(arrays, meta)
     config = policy.config
 
     env_name, env_config = meta["env_name"], meta["env_config"]
     try:
-        overrides = {**ckpt.env_overrides(env_config), "check_target": False}
+        overrides = {**runs.env_overrides(env_config), "check_target": False}
         env = mara_mjx.make(env_name, **overrides)
     except (ValueError, TypeError) as e:
         raise ExportError(

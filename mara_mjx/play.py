@@ -36,8 +36,10 @@ from typing import Any
 
 import numpy as np
 
+from mara_mjx import runs
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo import policy as policy_io
 from mara_mjx.ppo.config import EvalConfig
 from mara_mjx.ppo.evaluation import EvalResult, format_table
 from mara_mjx.ppo.flags import (
@@ -151,7 +153,7 @@ def check_video_args(args: argparse.Namespace) -> Path | None:
     if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
         raise UserError(f"--fps {args.fps} must be a number > 0")
     try:
-        ckpt.check_writable(path.parent)
+        runs.check_writable(path.parent)
     except OSError as e:
         raise UserError(f"cannot write the video to {str(path)!r}: {e}") from e
     return path
@@ -233,12 +235,12 @@ def main(argv: list[str] | None = None) -> int:
     video_path = check_video_args(args)
     path = ckpt.find_checkpoint(args.checkpoint)
     arrays, meta = ckpt.load_checkpoint(path)
-    policy = ckpt.policy_from_checkpoint(arrays, meta)
+    policy = policy_io.policy_from_checkpoint(arrays, meta)
     try:
         config = EvalConfig().replace(**overrides(args, "eval"))
     except ValueError as e:
         raise UserError(f"invalid episode settings: {e}") from e
-    env = ckpt.make_env(meta, **env_flags(args))
+    env = runs.make_env(meta, **env_flags(args))
     name = meta["env_name"]
 
     # The renderer or the viewer before anything compiles: a machine that cannot show

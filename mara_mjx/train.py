@@ -44,6 +44,7 @@ import argparse
 import dataclasses
 import datetime
 import json
+import shutil
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -53,6 +54,7 @@ import jax
 from tqdm import tqdm
 
 import mara_mjx
+from mara_mjx import runs
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import logger
@@ -155,10 +157,10 @@ def resolve(args: argparse.Namespace) -> Plan:
     evaluation = _build(
         "eval config", lambda: EvalConfig.from_dict({**meta["eval"], **given["eval"]})
     )
-    source = ckpt.run_dir_of(checkpoint)
+    source = runs.run_dir_of(checkpoint)
     out = Path(given["run"]["out"]) if given["run"].get("out") else source
     run = run.replace(out=str(out))
-    env_overrides = ckpt.env_overrides(meta["env_config"])
+    env_overrides = runs.env_overrides(meta["env_config"])
     return Plan(meta["env_name"], env_overrides, ppo, run, evaluation, out, checkpoint, source)
 
 
@@ -173,16 +175,20 @@ def _build(what: str, make: Callable[[], Any]) -> Any:
 def prepare_out(plan: Plan) -> None:
     """Create the run folder; refuse to mix a new run into an existing one."""
     try:
-        ckpt.check_writable(plan.out)
-        ckpt.check_writable(plan.out / ckpt.CHECKPOINT_DIR)
+        runs.check_writable(plan.out)
+        runs.check_writable(plan.out / ckpt.CHECKPOINT_DIR)
     except OSError as e:
         raise UserError(f"cannot write to the output folder {str(plan.out)!r}: {e}") from e
     existing = ckpt.list_checkpoints(plan.out)
-    if plan.checkpoint is None and (existing or (plan.out / "progress.csv").exists()):
+    if plan.checkpoint is None and existing:
         raise UserError(
             f"output folder {str(plan.out)!r} already holds a run; continue it with "
             f"--resume {plan.out} or choose another --out"
         )
+    if plan.checkpoint is None and (plan.out / "progress.csv").exists():
+        # a run stopped before its first checkpoint: nothing to resume, so start it over
+        print(f"{plan.out} holds a run stopped before its first checkpoint; starting over")
+        shutil.rmtree(plan.out / "tb", ignore_errors=True)
     if plan.checkpoint is not None and plan.source_run != plan.out.resolve():
         newer = [p for p in existing if p.name > plan.checkpoint.name]
         if newer:
@@ -222,11 +228,11 @@ def main(argv: list[str] | None = None) -> int:
         "ppo": plan.ppo.to_dict(),
         "run": plan.run.replace(out=str(plan.out)).to_dict(),
         "eval": plan.eval.to_dict(),
-        **ckpt.provenance(),
+        **runs.provenance(),
     }
     resolved = {**meta, "resume_from": str(plan.checkpoint) if plan.checkpoint else None}
     print(json.dumps(resolved, indent=2), flush=True)
-    ckpt.write_json(plan.out / "config.json", resolved)
+    runs.write_json(plan.out / "config.json", resolved)
 
     orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
     log = logger.RunLogger(
@@ -237,23 +243,41 @@ def main(argv: list[str] | None = None) -> int:
         resume_env_steps=progress["env_steps"],
     )
     milestones = logger.Milestones(progress.get("milestones"))
-    if state is None:
-        state = trainer.init(jax.random.key(plan.ppo.seed))
-    print(
-        f"{plan.env_name}: {trainer.num_updates} updates of {plan.ppo.num_envs} envs x "
-        f"{plan.ppo.num_steps} steps, {num_parameters(state.params)} parameters, "
-        f"{jax.default_backend()} backend; the first call compiles",
-        flush=True,
-    )
     try:
-        state, last = train_loop(trainer, state, plan, meta, progress, log, milestones)
+        with STOP:  # Ctrl-C: finish the call in flight, write a checkpoint, exit 130
+            if state is None:
+                state = trainer.init(jax.random.key(plan.ppo.seed))
+            print(
+                f"{plan.env_name}: {trainer.num_updates} updates of {plan.ppo.num_envs} envs x "
+                f"{plan.ppo.num_steps} steps, {num_parameters(state.params)} parameters, "
+                f"{jax.default_backend()} backend; the first call compiles",
+                flush=True,
+            )
+            state, last = train_loop(trainer, state, plan, meta, progress, log, milestones)
     except KeyboardInterrupt:
-        print(f"\ninterrupted; continue with --resume {plan.out}", file=sys.stderr)
+        print(f"\n{interrupted_message(plan.out)}", file=sys.stderr)
         return 130
     finally:
         log.close()
     finish(env, state, plan, meta, last, milestones)
     return 0
+
+
+STOP = runs.StopRequest(
+    "Ctrl-C: stopping after the jitted call in flight (the first one also compiles), then "
+    "writing a checkpoint; press Ctrl-C again to stop at once, losing the updates since "
+    "the last checkpoint"
+)
+
+
+def interrupted_message(out: Path) -> str:
+    found = ckpt.list_checkpoints(out)
+    if found:
+        return f"interrupted; {found[-1].name} is the newest checkpoint: --resume {out}"
+    return (
+        f"interrupted before the first checkpoint; {out} holds none, so the same command "
+        "(same --out) starts the run over"
+    )
 
 
 def elapsed(progress_time: float, resumed: bool) -> float:
@@ -284,7 +308,7 @@ def train_loop(
         disable=not plan.run.progress,
         file=sys.stderr,
     )
-    while done < trainer.num_updates:
+    while done < trainer.num_updates and not STOP.requested:
         next_checkpoint = (done // every + 1) * every
         n = min(trainer.updates_per_call, trainer.num_updates - done, next_checkpoint - done)
         start = time.monotonic()
@@ -305,7 +329,7 @@ def train_loop(
             det_mm=f"{last.get('det_error_mm', float('nan')):.2f}",
             refresh=False,
         )
-        if done % every == 0 or done == trainer.num_updates:
+        if done % every == 0 or done == trainer.num_updates or STOP.requested:
             progress = {
                 "update": done,
                 "env_steps": done * per_update,
@@ -314,8 +338,15 @@ def train_loop(
             }
             path = plan.out / ckpt.CHECKPOINT_DIR / ckpt.checkpoint_name(done)
             ckpt.save_checkpoint(path, state, {**meta, "progress": progress})
-            ckpt.prune_checkpoints(plan.out, plan.run.keep_checkpoints)
+            runs.prune_checkpoints(plan.out, plan.run.keep_checkpoints)
     bar.close()
+    if STOP.requested and done < trainer.num_updates:
+        path = plan.out / ckpt.CHECKPOINT_DIR / ckpt.checkpoint_name(done)
+        if not path.exists():  # stopped before the first call: its start is resumable too
+            now = elapsed(time_before, resumed)
+            progress = {**progress, "update": done, "env_steps": done * per_update, "time_s": now}
+            ckpt.save_checkpoint(path, state, {**meta, "progress": progress})
+        raise runs.Interrupted
     return state, last
 
 
@@ -355,12 +386,12 @@ def finish(
             "summary": result.summary(),
             "paper": PAPER_RESULTS.get(plan.env_name),
         }
-        ckpt.write_json(plan.out / "eval.json", report)
+        runs.write_json(plan.out / "eval.json", report)
         summary["eval"] = report["summary"]
     if plan.run.plots and (plan.out / "progress.csv").exists():
         for path in logger.save_plots(plan.out / "progress.csv", plan.out / "plots"):
             print(f"wrote {path}")
-    ckpt.write_json(plan.out / "summary.json", summary)
+    runs.write_json(plan.out / "summary.json", summary)
     print(f"run folder: {plan.out}")
 
 
