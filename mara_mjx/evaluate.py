@@ -24,12 +24,7 @@ import sys
 from pathlib import Path
 
 from mara_mjx import runs
-from mara_mjx.envs.base import EnvConfig
-from mara_mjx.ppo import checkpoint as ckpt
-from mara_mjx.ppo import policy as policy_io
-from mara_mjx.ppo.config import EvalConfig
-from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table
-from mara_mjx.ppo.flags import (
+from mara_mjx.cli import (
     Section,
     UserError,
     add_checkpoint_argument,
@@ -38,6 +33,11 @@ from mara_mjx.ppo.flags import (
     overrides,
     run_cli,
 )
+from mara_mjx.envs.base import EnvConfig
+from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo import policy as policy_io
+from mara_mjx.ppo.config import EvalConfig
+from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table
 from mara_mjx.rewards import RewardParams
 
 PROG = "mara_mjx.evaluate"

@@ -274,7 +274,7 @@ def load_exported(path: str | os.PathLike) -> NumpyPolicy:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from mara_mjx.ppo.flags import UserError
+    from mara_mjx.cli import UserError
 
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     parser.add_argument("checkpoint", help="checkpoint .npz file, or a run folder (its newest)")
@@ -295,6 +295,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from mara_mjx.ppo.flags import run_cli
+    from mara_mjx.cli import run_cli
 
     sys.exit(run_cli(main, PROG))

@@ -15,7 +15,7 @@ TCP (red) and the target marker (green, with its z axis in blue):
 * `--video PATH` (.mp4 or .gif): frames rendered offscreen (EGL or OSMesa, see
   `mara_mjx.render`), one per env step, at `--fps` (default 1 / control_dt: real time).
 
-`-r/--real-speed` runs the `real` driver (servo dynamics) instead of the checkpoint's;
+`-r/--real_speed` runs the `real` driver (servo dynamics) instead of the checkpoint's;
 `-v/--velocity V` sets its servo speed (rad/s, in (0, 1.57]) and implies `-r`, as
 gym-gazebo2's `-r`/`-v` flags did. The episodes are those of `python -m mara_mjx.evaluate`
 with the same flags: episode i resets from key split(key(seed), episodes)[i] with a joint
@@ -37,12 +37,7 @@ from typing import Any
 import numpy as np
 
 from mara_mjx import runs
-from mara_mjx.envs.base import EnvConfig
-from mara_mjx.ppo import checkpoint as ckpt
-from mara_mjx.ppo import policy as policy_io
-from mara_mjx.ppo.config import EvalConfig
-from mara_mjx.ppo.evaluation import EvalResult, format_table
-from mara_mjx.ppo.flags import (
+from mara_mjx.cli import (
     Section,
     UserError,
     add_checkpoint_argument,
@@ -51,6 +46,11 @@ from mara_mjx.ppo.flags import (
     overrides,
     run_cli,
 )
+from mara_mjx.envs.base import EnvConfig
+from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo import policy as policy_io
+from mara_mjx.ppo.config import EvalConfig
+from mara_mjx.ppo.evaluation import EvalResult, format_table
 
 PROG = "mara_mjx.play"
 VIDEO_FORMATS = (".mp4", ".gif")
@@ -71,7 +71,6 @@ def build_parser() -> argparse.ArgumentParser:
     add_checkpoint_argument(parser)
     parser.add_argument(
         "-r",
-        "--real-speed",
         "--real_speed",  # gym-gazebo2's spelling
         dest="env.driver",
         action="store_const",

@@ -186,7 +186,7 @@ def _save(fig, out: str | os.PathLike) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from mara_mjx.ppo.flags import UserError
+    from mara_mjx.cli import UserError
 
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -214,6 +214,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from mara_mjx.ppo.flags import run_cli
+    from mara_mjx.cli import run_cli
 
     sys.exit(run_cli(main, PROG))

@@ -55,12 +55,7 @@ from tqdm import tqdm
 
 import mara_mjx
 from mara_mjx import runs
-from mara_mjx.envs.base import EnvConfig
-from mara_mjx.ppo import checkpoint as ckpt
-from mara_mjx.ppo import logger
-from mara_mjx.ppo.config import PRESETS, EvalConfig, PPOConfig, RunConfig
-from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table
-from mara_mjx.ppo.flags import (
+from mara_mjx.cli import (
     Section,
     UserError,
     add_flags,
@@ -68,6 +63,11 @@ from mara_mjx.ppo.flags import (
     overrides,
     run_cli,
 )
+from mara_mjx.envs.base import EnvConfig
+from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo import logger
+from mara_mjx.ppo.config import PRESETS, EvalConfig, PPOConfig, RunConfig
+from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table
 from mara_mjx.ppo.policy import make_policy
 from mara_mjx.ppo.train import Trainer, make_train, num_parameters
 from mara_mjx.rewards import RewardParams

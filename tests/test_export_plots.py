@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 
 import mara_mjx
+from mara_mjx.cli import run_cli
 from mara_mjx.export import ExportError, load_exported
 from mara_mjx.export import main as export_main
 from mara_mjx.plots import main as plots_main
 from mara_mjx.ppo import PPOConfig, RunningStats, make_policy
 from mara_mjx.ppo import checkpoint as ckpt
-from mara_mjx.ppo.flags import run_cli
 from mara_mjx.ppo.networks import make_network
 
 PNG = b"\x89PNG\r\n\x1a\n"

@@ -42,6 +42,11 @@ def _can_build_wheels() -> bool:
     return (major, minor) >= (70, 1) or importlib.util.find_spec("wheel") is not None
 
 
+RESOLVE_ENV_STUDY = (
+    "from mara_mjx.bench import runner; runner.resolve(runner.build_parser(''), ['env'])"
+)
+
+
 @pytest.fixture(scope="module")
 def site(tmp_path_factory) -> Path:
     if not _can_build_wheels():
@@ -89,7 +94,7 @@ def test_plain_install_finds_its_model_and_imports_everything(site, tmp_path):
     # a benchmark's default output folder is under the working directory, not the package
     # (parse_args creates it and checks it is writable; the studies are test_benchmark's)
     bench = subprocess.run(
-        [sys.executable, "-c", "from mara_mjx import benchmark; benchmark.parse_args(['env'])"],
+        [sys.executable, "-c", RESOLVE_ENV_STUDY],
         cwd=tmp_path,
         env=env,
         capture_output=True,

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from flax import struct
 
+from mara_mjx.cli import Section, add_flags, overrides
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.ppo import (
     PRESETS,
@@ -32,7 +33,6 @@ from mara_mjx.ppo import (
     update_stats,
 )
 from mara_mjx.ppo import checkpoint as ckpt
-from mara_mjx.ppo.flags import Section, add_flags, overrides
 from mara_mjx.ppo.networks import forward, make_network
 from mara_mjx.ppo.train import stratified_minibatches
 from mara_mjx.rewards import RewardParams

@@ -23,8 +23,8 @@ import pytest
 from mara_mjx import evaluate as evaluate_cli
 from mara_mjx import runs
 from mara_mjx import train as train_cli
+from mara_mjx.cli import run_cli
 from mara_mjx.ppo import checkpoint as ckpt
-from mara_mjx.ppo.flags import run_cli
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = [
