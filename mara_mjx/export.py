@@ -51,32 +51,6 @@ class ExportError(ValueError):
     """A missing or corrupt checkpoint or exported file, or an output that cannot be written."""
 
 
-def observation_layout(orientation: bool) -> list[dict[str, Any]]:
-    """Names, slices [start, stop), units of the MARA observation (mara_mjx.envs.mara)."""
-    parts = [
-        ("q", 6, "rad", "joint positions motor1..motor6"),
-        ("e", 3, "m", "p_tcp - p_target, world frame"),
-    ]
-    if orientation:
-        parts.append(
-            ("quat_err", 4, "", "quat_tcp (x) conj(quat_target), (w, x, y, z), quat_tcp w >= 0")
-        )
-    parts.append(("v", 3, "m/s", "TCP linear velocity J_pos(q) qdot, world frame"))
-    layout, start = [], 0
-    for name, size, units, description in parts:
-        layout.append(
-            {
-                "name": name,
-                "start": start,
-                "stop": start + size,
-                "units": units,
-                "description": description,
-            }
-        )
-        start += size
-    return layout
-
-
 def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) -> Path:
     """Write the deterministic policy of `checkpoint` (a checkpoint file, or a run folder:
     its newest checkpoint) to `out_path` (.npz), atomically. Raises ExportError (or
@@ -113,8 +87,6 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
             f"env {env_name!r} has observation size {env.observation_size}, but the checkpoint "
             f"was trained on {meta['observation_size']}"
         )
-    orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
-
     out: dict[str, np.ndarray] = {}
     actor = policy.params["params"]["actor"]
     n_layers = len(config.hidden_sizes) + 1
@@ -139,7 +111,7 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
         "obs_var_eps": OBS_VAR_EPS,
         "relative_actions": bool(config.relative_actions),
         "hidden_obs": [int(i) for i in config.hidden_obs],
-        "observation_layout": observation_layout(orientation),
+        "observation_layout": env.observation_layout,
         "action": {
             "joint_names": list(JOINTS),
             "lower": [float(x) for x in env.joint_lower],

@@ -1,4 +1,12 @@
-"""The environment contract: config (static), params (traced), state (episode data).
+"""The environment contract: the `Env` protocol, config (static), params (traced), state
+(episode data).
+
+* `Env` is what every consumer relies on: the batching layer (`BatchedEnv`), the
+  gymnasium and brax adapters, PPO (`make_train`), evaluation, play and the tests' toy
+  env. Any object with these members works with all of them; `MaraEnv` is the one this
+  package ships. Its state must carry `obs`, `reward`, `terminated`, `truncated`, `key`,
+  `params` and `metrics` holding at least `episode_return`, `episode_length` and
+  `collisions` (`EnvStateLike`).
 
 * `EnvConfig` is fixed when an env is built: anything that changes shapes or Python
   control flow (driver, horizon, control period) plus the defaults of the params.
@@ -14,7 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Literal
+from typing import Any, Literal, Protocol, runtime_checkable
 
 import jax
 import numpy as np
@@ -22,6 +30,55 @@ from flax import struct
 
 from mara_mjx.envs.arm import MAX_JOINT_SPEED
 from mara_mjx.rewards import RewardParams
+
+
+@runtime_checkable
+class EnvStateLike(Protocol):
+    """What consumers read from an env's state (a pytree; batched: leading (N,) axis)."""
+
+    obs: jax.Array  # (observation_size,) float32
+    reward: jax.Array  # ()
+    terminated: jax.Array  # () bool: a real end (no bootstrap)
+    truncated: jax.Array  # () bool: the horizon (GAE bootstraps through it)
+    key: jax.Array  # PRNG key of this environment (auto-reset draws from it)
+    params: Any  # the traced params the episode runs with
+    metrics: dict[str, jax.Array]  # >= episode_return, episode_length, collisions
+
+
+@runtime_checkable
+class Env(Protocol):
+    """A pure, jittable, vmappable environment: the contract of every consumer.
+
+    `reset(key, params)` and `step(state, action)` are pure functions of pytrees (no
+    Python state changes inside), so `jax.jit` and `jax.vmap` apply to them directly.
+    """
+
+    @property
+    def observation_size(self) -> int:
+        """Length of `state.obs`."""
+        ...
+
+    @property
+    def action_size(self) -> int:
+        """Length of an action."""
+        ...
+
+    @property
+    def max_episode_steps(self) -> int:
+        """The horizon: `truncated` is set at this step."""
+        ...
+
+    default_params: Any
+    """The params pytree `reset` uses when given None."""
+
+    def reset(self, key: jax.Array, params: Any = None) -> EnvStateLike:
+        """A new episode's first state (params None: `default_params`)."""
+        ...
+
+    def step(self, state: Any, action: jax.Array) -> EnvStateLike:
+        """The next state after `action` (action_size,)."""
+        ...
+
 
 DRIVERS = ("train", "real")
 DEFAULT_TARGET_POS = (-0.40028, 0.095615, 0.72466)

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from mara_mjx import sharding
-from mara_mjx.envs.base import EnvParams, EnvState  # noqa: F401
+from mara_mjx.envs.base import Env, EnvParams, EnvState  # noqa: F401
 
 
 @struct.dataclass
@@ -52,12 +52,13 @@ class BatchedState:
 
 
 class BatchedEnv:
-    """Vectorised, auto-resetting wrapper of one env for `num_envs` environments."""
+    """Vectorised, auto-resetting wrapper of one env for `num_envs` environments. `env`:
+    anything that follows the `mara_mjx.envs.base.Env` contract."""
 
     RESET_STRATEGIES = ("select", "cond")
 
     def __init__(
-        self, env, num_envs: int, reset_strategy: str = "select", devices: int | None = None
+        self, env: Env, num_envs: int, reset_strategy: str = "select", devices: int | None = None
     ):
         if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
