@@ -18,6 +18,8 @@ import math
 import textwrap
 from typing import Any, TypeVar
 
+import numpy as np
+
 C = TypeVar("C")
 
 
@@ -95,3 +97,23 @@ def check_range(name: str, value: Any, low: float, high: float, low_open: bool =
     if not ok:
         bracket = "(" if low_open else "["
         raise ValueError(f"{name}={value!r} must be a finite number in {bracket}{low}, {high}]")
+
+
+def is_finite(x: Any) -> bool:
+    """A number (or numeric string) that is finite."""
+    try:
+        return math.isfinite(float(x))
+    except (TypeError, ValueError):
+        return False
+
+
+def check_vector(name: str, value: Any, size: int) -> None:
+    """ValueError unless `value` is `size` finite numbers."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{name} must be {size} numbers, got {value!r}") from e
+    if arr.shape != (size,):
+        raise ValueError(f"{name} must have shape ({size},), got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}={arr.tolist()} must be finite")
