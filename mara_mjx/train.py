@@ -2,6 +2,7 @@
 
     python -m mara_mjx.train --env MARA                          # the 'default' preset (GPU)
     python -m mara_mjx.train --env MARA --preset paper           # the paper: 1 env, 1e8 steps
+    python -m mara_mjx.train --env MARA --preset cpu             # a laptop CPU: minutes
     python -m mara_mjx.train --env MARA --num_envs 4096 --learning_rate 1e-3 --driver train
     python -m mara_mjx.train --resume runs/MARA-20250101-120000  # continue exactly
 
@@ -15,6 +16,11 @@ and plots/*.png.
 
 Bad input (unknown env, invalid config, unwritable folder, missing or corrupt checkpoint)
 fails before anything is compiled, with one line on stderr and exit status 2.
+
+Ctrl-C finishes the jitted call in flight, writes a checkpoint and exits with status 130
+(`--resume` continues; a second Ctrl-C exits at once). A folder with no checkpoint (a run
+killed before its first one) is started over by the same command. `--preset cpu` is
+sized for a laptop CPU (README, benchmarks/NOTES.md section 11).
 """
 
 # ruff: noqa: E402  (the clock starts before the heavy imports)
@@ -112,7 +118,8 @@ def build_parser() -> argparse.ArgumentParser:
         choices=sorted(PRESETS),
         help="PPO preset: 'default' (thousands of envs on one GPU), 'paper' (the paper's "
         "baselines ppo2 run: 1 env, 2048 steps, 1e8 steps), 'ros2learn' (2 x 16 nets, "
-        "exponential lr); flags override its fields (default: default)",
+        "exponential lr), 'cpu' (256 envs x 16 steps, 3e6 steps: a laptop CPU); flags "
+        "override its fields (default: default)",
     )
     parser.add_argument(
         "--resume",
