@@ -18,15 +18,17 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from mara_mjx import runs
 from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo import policy as policy_io
 from mara_mjx.ppo.config import EvalConfig
 from mara_mjx.ppo.evaluation import evaluate
 
 
 def trace(run: Path) -> dict:
     arrays, meta = ckpt.load_checkpoint(ckpt.find_checkpoint(run))
-    env = ckpt.make_env(meta)
-    policy = ckpt.policy_from_checkpoint(arrays, meta)
+    env = runs.make_env(meta)
+    policy = policy_io.policy_from_checkpoint(arrays, meta)
 
     def body(state, _):
         state = env.step(state, policy(state.obs))

@@ -109,7 +109,7 @@ def make_probe(env, probe_steps: int, episodes: int = 4):
     lower, upper = jnp.asarray(env.joint_lower), jnp.asarray(env.joint_upper)
     params = env.make_params(reset_noise=0.02)
     keys = jax.random.split(jax.random.key(12345), episodes)
-    quat = getattr(env, "observation_layout", {}).get("quat_err")
+    quat = [p["start"] for p in env.observation_layout if p["name"] == "quat_err"] or None
 
     def probe(policy):
         state = jax.vmap(env.reset, in_axes=(0, None))(keys, params)

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 from mujoco import mjx
 
 import mara_mjx
-from mara_mjx.benchmark import device_info, versions
+from mara_mjx.bench.runner import device_info, versions
 from mara_mjx.envs.batched import BatchedEnv
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 import jax
 
 import mara_mjx
-from mara_mjx.benchmark import device_info, versions
+from mara_mjx.bench.runner import device_info, versions
 from mara_mjx.ppo import PRESETS, make_train
 
 

@@ -4,7 +4,11 @@ Public API:
     make(name, **overrides)   build one of `registered()` (MARA, MARAOrient,
                               MARACollision, MARACollisionOrient)
     register(name, factory)   add your own variant
-    Env.reset(key, params=None) -> EnvState;  Env.step(state, action) -> EnvState
+    Env                       the contract every consumer relies on (a Protocol):
+                              reset(key, params=None) -> state, step(state, action)
+                              -> state, observation_size, action_size,
+                              max_episode_steps, default_params
+    MaraEnv                   the MARA tasks' implementation of it
     BatchedEnv(env, n)        vmap + auto-reset + episode statistics
     EnvConfig / EnvParams / EnvState / RewardParams
 
@@ -17,17 +21,17 @@ import mara_mjx.gym  # noqa: F401  (registers the gymnasium ids mara_mjx/<task>-
 from mara_mjx.envs import (
     BatchedEnv,
     BatchedState,
+    Env,
     EnvConfig,
     EnvParams,
     EnvState,
+    EnvStateLike,
     MaraEnv,
     make,
     register,
     registered,
 )
 from mara_mjx.rewards import RewardParams
-
-Env = MaraEnv
 
 __all__ = [
     "BatchedEnv",
@@ -36,6 +40,7 @@ __all__ = [
     "EnvConfig",
     "EnvParams",
     "EnvState",
+    "EnvStateLike",
     "MaraEnv",
     "RewardParams",
     "make",

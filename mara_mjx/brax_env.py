@@ -37,7 +37,13 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-from brax.envs.base import Env, State
+
+try:
+    from brax.envs.base import Env, State
+except ImportError as e:  # brax is an optional extra
+    raise ImportError(
+        "mara_mjx.brax_env needs brax: pip install 'mara_mjx[brax]' (or brax==0.14.2)"
+    ) from e
 
 import mara_mjx
 

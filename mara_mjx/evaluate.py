@@ -23,11 +23,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from mara_mjx.envs.base import EnvConfig
-from mara_mjx.ppo import checkpoint as ckpt
-from mara_mjx.ppo.config import EvalConfig
-from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table
-from mara_mjx.ppo.flags import (
+from mara_mjx import runs
+from mara_mjx.cli import (
     Section,
     UserError,
     add_checkpoint_argument,
@@ -36,6 +33,11 @@ from mara_mjx.ppo.flags import (
     overrides,
     run_cli,
 )
+from mara_mjx.envs.base import EnvConfig
+from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo import policy as policy_io
+from mara_mjx.ppo.config import EvalConfig
+from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table
 from mara_mjx.rewards import RewardParams
 
 PROG = "mara_mjx.evaluate"
@@ -68,20 +70,20 @@ def main(argv: list[str] | None = None) -> int:
     configure_jax()
     path = ckpt.find_checkpoint(args.checkpoint)
     arrays, meta = ckpt.load_checkpoint(path)
-    policy = ckpt.policy_from_checkpoint(arrays, meta)
+    policy = policy_io.policy_from_checkpoint(arrays, meta)
     try:
         config = EvalConfig().replace(**overrides(args, "eval"))
     except ValueError as e:
         raise UserError(f"invalid eval config: {e}") from e
-    env = ckpt.make_env(meta, **overrides(args, "env"))
+    env = runs.make_env(meta, **overrides(args, "env"))
     name = meta["env_name"]
     out = (
         Path(args.json)
         if args.json
-        else (ckpt.run_dir_of(path) / f"eval-{path.stem}-{env.config.driver}.json")
+        else (runs.run_dir_of(path) / f"eval-{path.stem}-{env.config.driver}.json")
     )
     try:
-        ckpt.check_writable(out.parent)
+        runs.check_writable(out.parent)
     except OSError as e:
         raise UserError(f"cannot write the report to {str(out)!r}: {e}") from e
 
@@ -102,13 +104,13 @@ def main(argv: list[str] | None = None) -> int:
         "eval": config.to_dict(),
         "ppo": meta["ppo"],
         "trained": meta["progress"],
-        **ckpt.provenance(),
+        **runs.provenance(),
         "training_versions": meta.get("versions"),
         "episodes": result.episodes(),
         "summary": result.summary(),
         "paper": PAPER_RESULTS.get(name),
     }
-    ckpt.write_json(out, report)
+    runs.write_json(out, report)
     print(f"wrote {out}")
     return 0
 

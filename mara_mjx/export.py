@@ -54,51 +54,31 @@ class ExportError(ValueError):
     """A missing or corrupt checkpoint or exported file, or an output that cannot be written."""
 
 
-def observation_layout(orientation: bool) -> list[dict[str, Any]]:
-    """Names, slices [start, stop), units of the MARA observation (mara_mjx.envs.mara)."""
-    parts = [
-        ("q", 6, "rad", "joint positions motor1..motor6"),
-        ("e", 3, "m", "p_tcp - p_target, world frame"),
-    ]
-    if orientation:
-        parts.append(
-            ("quat_err", 4, "", "quat_tcp (x) conj(quat_target), (w, x, y, z), quat_tcp w >= 0")
-        )
-    parts.append(("v", 3, "m/s", "TCP linear velocity J_pos(q) qdot, world frame"))
-    layout, start = [], 0
-    for name, size, units, description in parts:
-        layout.append(
-            {
-                "name": name,
-                "start": start,
-                "stop": start + size,
-                "units": units,
-                "description": description,
-            }
-        )
-        start += size
-    return layout
-
-
 def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) -> Path:
     """Write the deterministic policy of `checkpoint` (a checkpoint file, or a run folder:
     its newest checkpoint) to `out_path` (.npz), atomically. Raises ExportError (or
     mara_mjx.ppo.CheckpointError, also a ValueError) with what is wrong."""
     import mara_mjx
+    from mara_mjx import runs
     from mara_mjx.envs.arm import JOINTS
     from mara_mjx.ppo import checkpoint as ckpt
+    from mara_mjx.ppo import policy as policy_io
 
     out_path = Path(out_path)
     if out_path.suffix != ".npz":
         raise ExportError(f"output {str(out_path)!r} must end in .npz")
+    try:
+        runs.check_not_checkpoint(out_path, "export output")
+    except ValueError as e:
+        raise ExportError(str(e)) from e
     source = ckpt.find_checkpoint(checkpoint)
     arrays, meta = ckpt.load_checkpoint(source)
-    policy = ckpt.policy_from_checkpoint(arrays, meta)
+    policy = policy_io.policy_from_checkpoint(arrays, meta)
     config = policy.config
 
     env_name, env_config = meta["env_name"], meta["env_config"]
     try:
-        overrides = {**ckpt.env_overrides(env_config), "check_target": False}
+        overrides = {**runs.env_overrides(env_config), "check_target": False}
         env = mara_mjx.make(env_name, **overrides)
     except (ValueError, TypeError) as e:
         raise ExportError(
@@ -110,8 +90,6 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
             f"env {env_name!r} has observation size {env.observation_size}, but the checkpoint "
             f"was trained on {meta['observation_size']}"
         )
-    orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
-
     out: dict[str, np.ndarray] = {}
     actor = policy.params["params"]["actor"]
     n_layers = len(config.hidden_sizes) + 1
@@ -137,7 +115,7 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
         "relative_actions": bool(config.relative_actions),
         "hidden_obs": [int(i) for i in config.hidden_obs],
         "quat_index": int(config.quat_index) if config.canonical_quat else -1,
-        "observation_layout": observation_layout(orientation),
+        "observation_layout": env.observation_layout,
         "action": {
             "joint_names": list(JOINTS),
             "lower": [float(x) for x in env.joint_lower],
@@ -277,7 +255,7 @@ def load_exported(path: str | os.PathLike) -> NumpyPolicy:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from mara_mjx.ppo.flags import UserError
+    from mara_mjx.cli import UserError
 
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     parser.add_argument("checkpoint", help="checkpoint .npz file, or a run folder (its newest)")
@@ -298,6 +276,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from mara_mjx.ppo.flags import run_cli
+    from mara_mjx.cli import run_cli
 
     sys.exit(run_cli(main, PROG))

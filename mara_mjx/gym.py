@@ -1,4 +1,5 @@
-"""Gymnasium adapter: the MARA tasks as `gymnasium.Env` and `gymnasium.vector.VectorEnv`.
+"""Gymnasium adapter: the MARA tasks as `gymnasium.Env` (here) and
+`gymnasium.vector.VectorEnv` (`mara_mjx.gym_vector.MaraVectorEnv`), and the ids.
 
 Host side, numpy in and out; the physics runs in JAX (jitted once per instance).
 
@@ -12,9 +13,10 @@ Host side, numpy in and out; the physics runs in JAX (jitted once per instance).
     obs, infos = envs.reset(seed=0)                 # (64, 12) float32, one batched device call
 
 Registered ids: `mara_mjx/MARA-v0`, `mara_mjx/MARAOrient-v0`, `mara_mjx/MARACollision-v0`,
-`mara_mjx/MARACollisionOrient-v0`. Keyword arguments are the env options of
-`mara_mjx.make` (fields of `mara_mjx.EnvConfig`: driver, max_episode_steps, velocity,
-target_pos, target_quat, reset_noise, alpha, ..., done).
+`mara_mjx/MARACollisionOrient-v0`, and one per name you `mara_mjx.register`. Keyword
+arguments are the env options of `mara_mjx.make` (fields of `mara_mjx.EnvConfig`:
+driver, max_episode_steps, velocity, target_pos, target_quat, reset_noise, alpha, ...,
+done).
 
 Horizon: the ids are registered without a gymnasium `TimeLimit`; truncation comes from
 the env's own `max_episode_steps` (1024 by default). `MaraGymEnv(task,
@@ -46,12 +48,25 @@ reset and step. `metadata["render_fps"]` is 1 / control_dt (20 by default). `che
 builds every declared render mode, the viewer included, so run it with
 `skip_render_check=True` on a machine without a display.
 
-Vector env autoreset: `AutoresetMode.SAME_STEP` (declared in `metadata["autoreset_mode"]`),
-which is how `mara_mjx.BatchedEnv` resets on the device: the step that ends an episode
-returns that step's reward, terminated and truncated, the FIRST observation of the next
-episode as `obs`, and for the envs that ended `infos["final_obs"]` (object array of (obs,)
-arrays, None elsewhere; mask `infos["_final_obs"]`), `infos["final_info"]` (the ending
-step's metrics) and `infos["episode"]` ({"r": return, "l": length, "c": collisions}).
+Vector env autoreset (`autoreset_mode=`, declared in `metadata["autoreset_mode"]`):
+  * "next_step" (default; gymnasium's own mode, which its vector wrappers such as
+    `NormalizeObservation` require and CleanRL and SB3 assume): the step that ends an
+    episode returns that episode's final observation with terminated/truncated set and
+    its metrics in `infos`; at the next `step` that env ignores its action and returns
+    the new episode's first observation, reward 0, terminated = truncated = False.
+  * "same_step" (how `mara_mjx.BatchedEnv` resets on the device): the step that ends an
+    episode returns that step's reward, terminated and truncated, the FIRST observation
+    of the next episode as `obs` (its metrics in `infos`), and for the envs that ended
+    `infos["final_obs"]` (object array of (obs,) arrays, None elsewhere; mask
+    `infos["_final_obs"]`) and `infos["final_info"]` (the ending step's metrics).
+Either way the physics runs on the device in one jitted call per step. Episode
+statistics: wrap with `gymnasium.wrappers.vector.RecordEpisodeStatistics` (infos
+["episode"] with "r", "l", "t"); the ending step's metrics also hold `episode_return`,
+`episode_length` and `collisions`. `reset(seed=s)` splits the N env keys from one int;
+`reset(seed=[s_0, ..., s_N-1])` gives env i the key `jax.random.key(s_i)`.
+
+Ids: every name of `mara_mjx.registered()` gets `mara_mjx/<name>-v0`, including names
+added later with `mara_mjx.register` (the registry calls `register_gym_id`).
 """
 
 from __future__ import annotations
@@ -62,12 +77,11 @@ import gymnasium
 import jax
 import numpy as np
 from gymnasium import spaces
-from gymnasium.vector import AutoresetMode, VectorEnv
-from gymnasium.vector.utils import batch_space
 
-from mara_mjx.envs import BatchedEnv, make
+from mara_mjx.envs import make
+from mara_mjx.envs.registry import on_register
 
-TASK_NAMES = ("MARA", "MARAOrient", "MARACollision", "MARACollisionOrient")
+TASK_NAMES = ("MARA", "MARAOrient", "MARACollision", "MARACollisionOrient")  # the paper's
 NAMESPACE = "mara_mjx"
 VERSION = 0
 
@@ -244,146 +258,24 @@ class MaraGymEnv(gymnasium.Env):
             self._viewer = None
 
 
-class MaraVectorEnv(VectorEnv):
-    """`num_envs` copies of one MARA task, batched on the device by `mara_mjx.BatchedEnv`.
-
-    Autoreset mode SAME_STEP (see the module docstring). Observations (N, obs_size)
-    float32, rewards (N,) float32, terminations/truncations (N,) bool; infos hold the
-    step's metrics (N, ...) (pre-reset values for envs that just ended), each with a
-    `_name` mask.
-
-    Args:
-      task: a name of `mara_mjx.registered()`.
-      num_envs: N.
-      reset_strategy: `BatchedEnv`'s ("select" or "cond").
-      devices: `BatchedEnv`'s: devices to spread the N envs over (None: all; N must be a
-        multiple of their count; 1: one device).
-      render_mode: must be None (to watch an arm, use `MaraGymEnv(render_mode=...)`).
-      **overrides: env options of `mara_mjx.make`.
-    """
-
-    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
-
-    def __init__(
-        self,
-        task: str = "MARA",
-        num_envs: int = 1,
-        reset_strategy: str = "select",
-        render_mode: str | None = None,
-        devices: int | None = None,
-        **overrides: Any,
-    ):
-        _check_render_mode(render_mode, (), "MaraVectorEnv (watch one arm with MaraGymEnv)")
-        self.env = make(task, **overrides)
-        self.batched = BatchedEnv(self.env, num_envs, reset_strategy, devices)
-        self.task = task
-        self.num_envs = num_envs
-        self.render_mode = None
-        self.single_observation_space, self.single_action_space = _spaces(self.env)
-        self.observation_space = batch_space(self.single_observation_space, num_envs)
-        self.action_space = batch_space(self.single_action_space, num_envs)
-        self._jit_reset = jax.jit(self.batched.reset)
-        self._jit_step = jax.jit(self.batched.step)
-        self.state = None  # mara_mjx.BatchedState after reset
-
-    def precompile(self) -> MaraVectorEnv:
-        """Compile the batched reset and step now. The episodes are untouched. Returns self."""
-        state = self._jit_reset(jax.random.key(0), self.env.default_params)
-        action = np.zeros(self.action_space.shape, np.float32)
-        jax.block_until_ready(self._jit_step(state, action))
-        return self
-
-    def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
-        """Reset all N envs. `seed`: one int (the N keys are split from `jax.random.key(seed)`);
-        `options`: params overrides shared by all envs (see `MaraEnv.make_params`)."""
-        if seed is not None and (not isinstance(seed, int | np.integer) or isinstance(seed, bool)):
-            raise ValueError(
-                f"seed must be one int (the {self.num_envs} env keys are split from it), "
-                f"got {seed!r}"
-            )
-        super().reset(seed=seed)
-        params = self.env.make_params(**options) if options else self.env.default_params
-        key = jax.random.key(int(self.np_random.integers(2**31)) if seed is None else int(seed))
-        self.state = self._jit_reset(key, params)
-        obs, metrics = jax.device_get((self.state.obs, self.state.metrics))
-        return np.array(obs, np.float32), self._infos(_numpy_info(metrics), None)
-
-    def step(
-        self, actions: Any
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Step all envs with `actions` (N, 6) rad; ended episodes reset in the same step."""
-        if self.state is None:
-            raise gymnasium.error.ResetNeeded("call reset() before step()")
-        actions = check_action(actions, self.action_space.shape)
-        self.state = self._jit_step(self.state, actions)
-        s = self.state
-        host = jax.device_get(
-            (
-                s.obs,
-                s.reward,
-                s.terminated,
-                s.truncated,
-                s.final_obs,
-                s.episode_return,
-                s.episode_length,
-                s.episode_collisions,
-                s.metrics,
-            )
-        )
-        obs, reward, terminated, truncated, final_obs, ep_ret, ep_len, ep_col, metrics = host
-        done = np.asarray(terminated | truncated, bool)
-        infos = self._infos(_numpy_info(metrics), None)
-        if done.any():
-            final = np.full(self.num_envs, None, dtype=object)
-            for i in np.flatnonzero(done):
-                final[i] = np.array(final_obs[i], np.float32)
-            infos["final_obs"], infos["_final_obs"] = final, done.copy()
-            infos["final_info"] = self._infos(_numpy_info(metrics), done)
-            infos["_final_info"] = done.copy()
-            episode = {"r": ep_ret, "l": ep_len, "c": ep_col}
-            infos["episode"] = self._infos(_numpy_info(episode), done)
-            infos["_episode"] = done.copy()
-        return (
-            np.array(obs, np.float32),
-            np.array(reward, np.float32),
-            np.array(terminated, bool),
-            np.array(truncated, bool),
-            infos,
-        )
-
-    def render(self) -> None:
-        """Rendering is not supported by this adapter: returns None."""
-        return None
-
-    def _infos(self, values: dict[str, np.ndarray], mask: np.ndarray | None) -> dict[str, Any]:
-        """gymnasium's vector info layout: each key with a `_key` boolean mask."""
-        mask = np.ones(self.num_envs, bool) if mask is None else mask
-        out: dict[str, Any] = {}
-        for name, value in values.items():
-            out[name] = value
-            out[f"_{name}"] = mask.copy()
-        return out
-
-
 def _numpy_info(metrics: dict[str, Any]) -> dict[str, np.ndarray]:
     return {k: np.array(v) for k, v in metrics.items()}
 
 
-def register_gym_ids() -> None:
-    """Register the four tasks with gymnasium (idempotent; builds nothing)."""
-    for task in TASK_NAMES:
-        env_id = gym_id(task)
-        if env_id in gymnasium.registry:
-            continue
+def register_gym_id(task: str) -> str:
+    """Register `mara_mjx/<task>-v0` with gymnasium for a name of `mara_mjx.registered()`
+    (idempotent; builds nothing). Returns the id."""
+    env_id = gym_id(task)
+    if env_id not in gymnasium.registry:
         gymnasium.register(
             id=env_id,
             entry_point="mara_mjx.gym:MaraGymEnv",
-            vector_entry_point="mara_mjx.gym:MaraVectorEnv",
+            vector_entry_point="mara_mjx.gym_vector:MaraVectorEnv",
             max_episode_steps=None,
             kwargs={"task": task},
         )
+    return env_id
 
 
-register_gym_ids()
+# Every registered env gets an id, the four tasks and any later `mara_mjx.register(name, ...)`.
+on_register(register_gym_id)

@@ -15,7 +15,7 @@ TCP (red) and the target marker (green, with its z axis in blue):
 * `--video PATH` (.mp4 or .gif): frames rendered offscreen (EGL or OSMesa, see
   `mara_mjx.render`), one per env step, at `--fps` (default 1 / control_dt: real time).
 
-`-r/--real-speed` runs the `real` driver (servo dynamics) instead of the checkpoint's;
+`-r/--real_speed` runs the `real` driver (servo dynamics) instead of the checkpoint's;
 `-v/--velocity V` sets its servo speed (rad/s, in (0, 1.57]) and implies `-r`, as
 gym-gazebo2's `-r`/`-v` flags did. The episodes are those of `python -m mara_mjx.evaluate`
 with the same flags: episode i resets from key split(key(seed), episodes)[i] with a joint
@@ -36,11 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from mara_mjx.envs.base import EnvConfig
-from mara_mjx.ppo import checkpoint as ckpt
-from mara_mjx.ppo.config import EvalConfig
-from mara_mjx.ppo.evaluation import EvalResult, format_table
-from mara_mjx.ppo.flags import (
+from mara_mjx import runs
+from mara_mjx.cli import (
     Section,
     UserError,
     add_checkpoint_argument,
@@ -48,6 +45,17 @@ from mara_mjx.ppo.flags import (
     configure_jax,
     overrides,
     run_cli,
+)
+from mara_mjx.envs.base import EnvConfig
+from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo import policy as policy_io
+from mara_mjx.ppo.config import EvalConfig
+from mara_mjx.ppo.evaluation import (
+    EvalResult,
+    episode_plan,
+    episode_record,
+    format_table,
+    reached_tolerance,
 )
 
 PROG = "mara_mjx.play"
@@ -69,7 +77,6 @@ def build_parser() -> argparse.ArgumentParser:
     add_checkpoint_argument(parser)
     parser.add_argument(
         "-r",
-        "--real-speed",
         "--real_speed",  # gym-gazebo2's spelling
         dest="env.driver",
         action="store_const",
@@ -151,7 +158,7 @@ def check_video_args(args: argparse.Namespace) -> Path | None:
     if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
         raise UserError(f"--fps {args.fps} must be a number > 0")
     try:
-        ckpt.check_writable(path.parent)
+        runs.check_writable(path.parent)
     except OSError as e:
         raise UserError(f"cannot write the video to {str(path)!r}: {e}") from e
     return path
@@ -214,14 +221,15 @@ class VideoWriter:
 
 def episode_line(i: int, record: dict[str, Any], orientation: bool, tolerance_mm: float) -> str:
     x, y, z = record["position_error_mm"]
-    line = f"episode {i}: {record['steps']} steps"
+    line = f"episode {i}: {int(record['steps'])} steps"
     if tolerance_mm > 0:
         line += f" ({'reached' if record['reached'] else 'did not reach'} {tolerance_mm:g} mm)"
     line += f", final error x {x:.2f} y {y:.2f} z {z:.2f} mm"
     if orientation:
         rx, ry, rz = record["orientation_error_deg"]
         line += f", orientation x {rx:.2f} y {ry:.2f} z {rz:.2f} deg"
-    return line + f", collisions {record['collisions']}, return {record['episode_return']:.1f}"
+    collisions, ret = int(record["collisions"]), float(record["episode_return"])
+    return line + f", collisions {collisions}, return {ret:.1f}"
 
 
 # ---------------------------------------------------------------------- main
@@ -233,12 +241,12 @@ def main(argv: list[str] | None = None) -> int:
     video_path = check_video_args(args)
     path = ckpt.find_checkpoint(args.checkpoint)
     arrays, meta = ckpt.load_checkpoint(path)
-    policy = ckpt.policy_from_checkpoint(arrays, meta)
+    policy = policy_io.policy_from_checkpoint(arrays, meta)
     try:
         config = EvalConfig().replace(**overrides(args, "eval"))
     except ValueError as e:
         raise UserError(f"invalid episode settings: {e}") from e
-    env = ckpt.make_env(meta, **env_flags(args))
+    env = runs.make_env(meta, **env_flags(args))
     name = meta["env_name"]
 
     # The renderer or the viewer before anything compiles: a machine that cannot show
@@ -292,11 +300,9 @@ def run_episodes(env, policy, config: EvalConfig, viewer, renderer, writer, hold
     Returns one record per finished episode (EvalResult's fields)."""
     import jax
 
-    params = env.make_params(reset_noise=config.noise)
-    keys = jax.random.split(jax.random.key(config.seed), config.episodes)
+    params, keys = episode_plan(env, config)  # evaluate's episodes, one at a time
     reset = jax.jit(env.reset)
     step = jax.jit(lambda policy, state: env.step(state, policy(state.obs)))
-    tolerance = config.tolerance_mm / 1000.0
     dt = env.config.control_dt
     target = jax.device_get((params.target_pos, params.target_quat))
 
@@ -320,29 +326,19 @@ def run_episodes(env, policy, config: EvalConfig, viewer, renderer, writer, hold
         tick = time.perf_counter()
         while True:
             state = step(policy, state)
-            q, m, terminated, truncated, n = jax.device_get(
-                (state.q, state.metrics, state.terminated, state.truncated, state.step)
+            q, m, terminated, truncated = jax.device_get(
+                (state.q, state.metrics, state.terminated, state.truncated)
             )
             if viewer is not None:  # pace to the control period in wall-clock time
                 tick = max(tick + dt, time.perf_counter())  # resync if behind
                 time.sleep(max(0.0, tick - time.perf_counter()))
             frame = show(q)
-            reached = tolerance > 0 and bool(np.all(m["position_error"] <= tolerance))
+            reached = bool(reached_tolerance(m, config))
             if reached or terminated or truncated:
                 break
             if viewer is not None and not viewer.running:
                 return records
-        records.append(
-            {
-                "position_error_mm": 1000.0 * m["position_error"],
-                "orientation_error_deg": np.degrees(m["orientation_error"]),
-                "distance_mm": 1000.0 * float(m["distance"]),
-                "steps": int(n),
-                "reached": reached,
-                "collisions": int(m["collisions"]),
-                "episode_return": float(m["episode_return"]),
-            }
-        )
+        records.append(jax.device_get(episode_record(state, reached)))
         if viewer is not None:
             time.sleep(hold)
         else:

@@ -17,7 +17,6 @@ from each run folder's progress.csv (columns env_steps, reward_mean, entropy; wr
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import os
 import sys
@@ -108,31 +107,13 @@ def plot_reward_shape(
 
 def read_curves(run: str | os.PathLike) -> dict[str, np.ndarray]:
     """The curve columns of a run folder's progress.csv (or of a CSV file given directly)."""
-    path = Path(run)
-    if not path.exists():
-        raise PlotError(f"run folder {str(path)!r} does not exist")
-    csv_path = path / "progress.csv" if path.is_dir() else path
-    if not csv_path.is_file():
-        raise PlotError(f"run folder {str(path)!r} has no progress.csv")
+    from mara_mjx.ppo.logger import ProgressError, read_progress
+
     try:
-        with open(csv_path, newline="") as f:
-            reader = csv.DictReader(f)
-            rows = list(reader)
-            fields = reader.fieldnames or []
-    except (OSError, UnicodeDecodeError, csv.Error) as e:
-        raise PlotError(f"cannot read {str(csv_path)!r}: {e}") from e
-    missing = [c for c in CURVE_COLUMNS if c not in fields]
-    if missing:
-        raise PlotError(f"{str(csv_path)!r} lacks the column(s) {missing}")
-    if not rows:
-        raise PlotError(f"{str(csv_path)!r} has no rows yet")
-    out = {}
-    for c in CURVE_COLUMNS:
-        try:
-            out[c] = np.array([float(row[c]) if row[c] != "" else np.nan for row in rows])
-        except (TypeError, ValueError) as e:
-            raise PlotError(f"{str(csv_path)!r}: column {c!r} is not numeric: {e}") from e
-    return out
+        progress = read_progress(run, CURVE_COLUMNS)
+    except ProgressError as e:
+        raise PlotError(str(e)) from e
+    return {c: progress[c] for c in CURVE_COLUMNS}
 
 
 def plot_curves(runs: Sequence[str | os.PathLike], out: str | os.PathLike) -> Path:
@@ -186,7 +167,7 @@ def _save(fig, out: str | os.PathLike) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from mara_mjx.ppo.flags import UserError
+    from mara_mjx.cli import UserError
 
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -214,6 +195,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from mara_mjx.ppo.flags import run_cli
+    from mara_mjx.cli import run_cli
 
     sys.exit(run_cli(main, PROG))

@@ -2,6 +2,7 @@
 
     python -m mara_mjx.train --env MARA                          # the 'default' preset (GPU)
     python -m mara_mjx.train --env MARA --preset paper           # the paper: 1 env, 1e8 steps
+    python -m mara_mjx.train --env MARA --preset cpu             # a laptop CPU: minutes
     python -m mara_mjx.train --env MARA --num_envs 4096 --learning_rate 1e-3 --driver train
     python -m mara_mjx.train --resume runs/MARA-20250101-120000  # continue exactly
 
@@ -15,6 +16,11 @@ and plots/*.png.
 
 Bad input (unknown env, invalid config, unwritable folder, missing or corrupt checkpoint)
 fails before anything is compiled, with one line on stderr and exit status 2.
+
+Ctrl-C finishes the jitted call in flight, writes a checkpoint and exits with status 130
+(`--resume` continues; a second Ctrl-C exits at once). A folder with no checkpoint (a run
+killed before its first one) is started over by the same command. `--preset cpu` is
+sized for a laptop CPU (README, benchmarks/NOTES.md section 11).
 """
 
 # ruff: noqa: E402  (the clock starts before the heavy imports)
@@ -44,6 +50,7 @@ import argparse
 import dataclasses
 import datetime
 import json
+import shutil
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -53,12 +60,8 @@ import jax
 from tqdm import tqdm
 
 import mara_mjx
-from mara_mjx.envs.base import EnvConfig
-from mara_mjx.ppo import checkpoint as ckpt
-from mara_mjx.ppo import logger
-from mara_mjx.ppo.config import PRESETS, EvalConfig, PPOConfig, RunConfig
-from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table
-from mara_mjx.ppo.flags import (
+from mara_mjx import runs
+from mara_mjx.cli import (
     Section,
     UserError,
     add_flags,
@@ -66,6 +69,11 @@ from mara_mjx.ppo.flags import (
     overrides,
     run_cli,
 )
+from mara_mjx.envs.base import EnvConfig
+from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo import logger
+from mara_mjx.ppo.config import PRESETS, EvalConfig, PPOConfig, RunConfig
+from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table
 from mara_mjx.ppo.policy import make_policy
 from mara_mjx.ppo.train import Trainer, make_train, num_parameters
 from mara_mjx.rewards import RewardParams
@@ -110,7 +118,8 @@ def build_parser() -> argparse.ArgumentParser:
         choices=sorted(PRESETS),
         help="PPO preset: 'default' (thousands of envs on one GPU), 'paper' (the paper's "
         "baselines ppo2 run: 1 env, 2048 steps, 1e8 steps), 'ros2learn' (2 x 16 nets, "
-        "exponential lr); flags override its fields (default: default)",
+        "exponential lr), 'cpu' (256 envs x 16 steps, 3e6 steps: a laptop CPU); flags "
+        "override its fields (default: default)",
     )
     parser.add_argument(
         "--resume",
@@ -155,10 +164,10 @@ def resolve(args: argparse.Namespace) -> Plan:
     evaluation = _build(
         "eval config", lambda: EvalConfig.from_dict({**meta["eval"], **given["eval"]})
     )
-    source = ckpt.run_dir_of(checkpoint)
+    source = runs.run_dir_of(checkpoint)
     out = Path(given["run"]["out"]) if given["run"].get("out") else source
     run = run.replace(out=str(out))
-    env_overrides = ckpt.env_overrides(meta["env_config"])
+    env_overrides = runs.env_overrides(meta["env_config"])
     return Plan(meta["env_name"], env_overrides, ppo, run, evaluation, out, checkpoint, source)
 
 
@@ -173,16 +182,20 @@ def _build(what: str, make: Callable[[], Any]) -> Any:
 def prepare_out(plan: Plan) -> None:
     """Create the run folder; refuse to mix a new run into an existing one."""
     try:
-        ckpt.check_writable(plan.out)
-        ckpt.check_writable(plan.out / ckpt.CHECKPOINT_DIR)
+        runs.check_writable(plan.out)
+        runs.check_writable(plan.out / ckpt.CHECKPOINT_DIR)
     except OSError as e:
         raise UserError(f"cannot write to the output folder {str(plan.out)!r}: {e}") from e
     existing = ckpt.list_checkpoints(plan.out)
-    if plan.checkpoint is None and (existing or (plan.out / "progress.csv").exists()):
+    if plan.checkpoint is None and existing:
         raise UserError(
             f"output folder {str(plan.out)!r} already holds a run; continue it with "
             f"--resume {plan.out} or choose another --out"
         )
+    if plan.checkpoint is None and (plan.out / "progress.csv").exists():
+        # a run stopped before its first checkpoint: nothing to resume, so start it over
+        print(f"{plan.out} holds a run stopped before its first checkpoint; starting over")
+        shutil.rmtree(plan.out / "tb", ignore_errors=True)
     if plan.checkpoint is not None and plan.source_run != plan.out.resolve():
         newer = [p for p in existing if p.name > plan.checkpoint.name]
         if newer:
@@ -204,6 +217,9 @@ def main(argv: list[str] | None = None) -> int:
         trainer = make_train(env, plan.ppo, plan.run.updates_per_call, plan.run.devices)
     except ValueError as e:
         raise UserError(str(e)) from e
+    # the config with its env-dependent fields resolved (PPOConfig.quat_index): saved with
+    # every checkpoint, so policies load with the same observation reading
+    plan = dataclasses.replace(plan, ppo=trainer.config)
     prepare_out(plan)
 
     progress: dict[str, Any] = {"update": 0, "env_steps": 0, "time_s": 0.0, "milestones": {}}
@@ -222,11 +238,11 @@ def main(argv: list[str] | None = None) -> int:
         "ppo": plan.ppo.to_dict(),
         "run": plan.run.replace(out=str(plan.out)).to_dict(),
         "eval": plan.eval.to_dict(),
-        **ckpt.provenance(),
+        **runs.provenance(),
     }
     resolved = {**meta, "resume_from": str(plan.checkpoint) if plan.checkpoint else None}
     print(json.dumps(resolved, indent=2), flush=True)
-    ckpt.write_json(plan.out / "config.json", resolved)
+    runs.write_json(plan.out / "config.json", resolved)
 
     orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
     log = logger.RunLogger(
@@ -237,23 +253,41 @@ def main(argv: list[str] | None = None) -> int:
         resume_env_steps=progress["env_steps"],
     )
     milestones = logger.Milestones(progress.get("milestones"))
-    if state is None:
-        state = trainer.init(jax.random.key(plan.ppo.seed))
-    print(
-        f"{plan.env_name}: {trainer.num_updates} updates of {plan.ppo.num_envs} envs x "
-        f"{plan.ppo.num_steps} steps, {num_parameters(state.params)} parameters, "
-        f"{jax.default_backend()} backend; the first call compiles",
-        flush=True,
-    )
     try:
-        state, last = train_loop(trainer, state, plan, meta, progress, log, milestones)
+        with STOP:  # Ctrl-C: finish the call in flight, write a checkpoint, exit 130
+            if state is None:
+                state = trainer.init(jax.random.key(plan.ppo.seed))
+            print(
+                f"{plan.env_name}: {trainer.num_updates} updates of {plan.ppo.num_envs} envs x "
+                f"{plan.ppo.num_steps} steps, {num_parameters(state.params)} parameters, "
+                f"{jax.default_backend()} backend; the first call compiles",
+                flush=True,
+            )
+            state, last = train_loop(trainer, state, plan, meta, progress, log, milestones)
     except KeyboardInterrupt:
-        print(f"\ninterrupted; continue with --resume {plan.out}", file=sys.stderr)
+        print(f"\n{interrupted_message(plan.out)}", file=sys.stderr)
         return 130
     finally:
         log.close()
     finish(env, state, plan, meta, last, milestones)
     return 0
+
+
+STOP = runs.StopRequest(
+    "Ctrl-C: stopping after the jitted call in flight (the first one also compiles), then "
+    "writing a checkpoint; press Ctrl-C again to stop at once, losing the updates since "
+    "the last checkpoint"
+)
+
+
+def interrupted_message(out: Path) -> str:
+    found = ckpt.list_checkpoints(out)
+    if found:
+        return f"interrupted; {found[-1].name} is the newest checkpoint: --resume {out}"
+    return (
+        f"interrupted before the first checkpoint; {out} holds none, so the same command "
+        "(same --out) starts the run over"
+    )
 
 
 def elapsed(progress_time: float, resumed: bool) -> float:
@@ -284,7 +318,7 @@ def train_loop(
         disable=not plan.run.progress,
         file=sys.stderr,
     )
-    while done < trainer.num_updates:
+    while done < trainer.num_updates and not STOP.requested:
         next_checkpoint = (done // every + 1) * every
         n = min(trainer.updates_per_call, trainer.num_updates - done, next_checkpoint - done)
         start = time.monotonic()
@@ -305,7 +339,7 @@ def train_loop(
             det_mm=f"{last.get('det_error_mm', float('nan')):.2f}",
             refresh=False,
         )
-        if done % every == 0 or done == trainer.num_updates:
+        if done % every == 0 or done == trainer.num_updates or STOP.requested:
             progress = {
                 "update": done,
                 "env_steps": done * per_update,
@@ -314,8 +348,15 @@ def train_loop(
             }
             path = plan.out / ckpt.CHECKPOINT_DIR / ckpt.checkpoint_name(done)
             ckpt.save_checkpoint(path, state, {**meta, "progress": progress})
-            ckpt.prune_checkpoints(plan.out, plan.run.keep_checkpoints)
+            runs.prune_checkpoints(plan.out, plan.run.keep_checkpoints)
     bar.close()
+    if STOP.requested and done < trainer.num_updates:
+        path = plan.out / ckpt.CHECKPOINT_DIR / ckpt.checkpoint_name(done)
+        if not path.exists():  # stopped before the first call: its start is resumable too
+            now = elapsed(time_before, resumed)
+            progress = {**progress, "update": done, "env_steps": done * per_update, "time_s": now}
+            ckpt.save_checkpoint(path, state, {**meta, "progress": progress})
+        raise runs.Interrupted
     return state, last
 
 
@@ -355,12 +396,12 @@ def finish(
             "summary": result.summary(),
             "paper": PAPER_RESULTS.get(plan.env_name),
         }
-        ckpt.write_json(plan.out / "eval.json", report)
+        runs.write_json(plan.out / "eval.json", report)
         summary["eval"] = report["summary"]
     if plan.run.plots and (plan.out / "progress.csv").exists():
         for path in logger.save_plots(plan.out / "progress.csv", plan.out / "plots"):
             print(f"wrote {path}")
-    ckpt.write_json(plan.out / "summary.json", summary)
+    runs.write_json(plan.out / "summary.json", summary)
     print(f"run folder: {plan.out}")
 
 

@@ -23,7 +23,7 @@ from brax.envs.base import State
 from brax.envs.wrappers.training import wrap
 
 import mara_mjx
-from mara_mjx.bench_ppo import CompileClock, Run
+from mara_mjx.bench.ppo import CompileClock, Run
 from mara_mjx.brax_env import METRICS, NEVER, BraxMaraEnv, make_brax_env
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -56,7 +56,7 @@ def runs(tmp_path_factory):
     )
     procs = {
         "env": _popen(_cli("env", *tiny, "--drivers", "train")),
-        "peers": _popen(_cli("peers", "--quick", "--skip-mjx", "--out", str(out))),
+        "peers": _popen(_cli("peers", "--quick", "--skip_mjx", "--out", str(out))),
         "limit": _popen(_cli("limit", *tiny, "--drivers", "train")),
         "train": ppo_proc,
         "brax": ppo_proc,
@@ -266,10 +266,10 @@ def test_run_summary_subtracts_compile():
         (["nostudy"], "invalid choice"),
         (["env", "--tasks", "NoSuchTask"], "unknown task"),
         (["env", "--out", "/proc/forbidden"], "not writable"),
-        (["brax", "--num-envs", "6"], "divisible by num_minibatches"),
-        (["train", "--num-minibatches", "7"], "does not divide"),
-        (["scaling", "--scaling-envs", "0"], "must be positive"),
-        (["scaling", "--device-counts", "64"], "not available"),
+        (["brax", "--num_envs", "6"], "divisible by num_minibatches"),
+        (["train", "--num_minibatches", "7"], "does not divide"),
+        (["scaling", "--envs_per_device", "0"], "must be an int >= 1"),
+        (["scaling", "--device_counts", "64"], "not available"),
     ],
 )
 def test_bad_input_gives_clear_error(args, message):

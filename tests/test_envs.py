@@ -20,7 +20,12 @@ def test_registered_names():
 
 def test_every_task_jits_resets_and_steps(task):
     env = task.env
+    assert isinstance(env, mara_mjx.Env)  # the contract every consumer relies on
+    layout = env.observation_layout
+    assert [p["name"] for p in layout][:2] == ["q", "e"] and layout[-1]["name"] == "v"
+    assert env.observation_size == layout[-1]["stop"]
     state = task.reset(jax.random.key(0))
+    assert isinstance(state, mara_mjx.EnvStateLike)
     assert state.obs.shape == (env.observation_size,)
     assert set(state.metrics) == set(METRIC_KEYS)
     for i in range(3):

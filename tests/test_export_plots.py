@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 
 import mara_mjx
+from mara_mjx.cli import run_cli
 from mara_mjx.export import ExportError, load_exported
 from mara_mjx.export import main as export_main
 from mara_mjx.plots import main as plots_main
 from mara_mjx.ppo import PPOConfig, RunningStats, make_policy
 from mara_mjx.ppo import checkpoint as ckpt
-from mara_mjx.ppo.flags import run_cli
 from mara_mjx.ppo.networks import make_network
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -151,6 +151,52 @@ def test_export_cli(tmp_path, capsys):
     ckpt_file = ckpt.find_checkpoint(tmp_path / "run")
     with pytest.raises(ExportError, match="format"):
         load_exported(ckpt_file)  # a checkpoint is not an exported policy
+
+
+def test_export_never_writes_onto_a_checkpoint(tmp_path, capsys):
+    """`export CKPT CKPT`, onto another run's checkpoint or into a checkpoints/ folder:
+    exit 2, the checkpoint intact (it still loads and resumes)."""
+    source = make_run(tmp_path / "run", "MARA", True)
+    other = make_run(tmp_path / "other", "MARA", False, seed=1)
+    before = {p: p.read_bytes() for p in (source, other)}
+    cases = [
+        ([str(source), str(source)], "is inside a run's checkpoints/"),
+        ([str(tmp_path / "run"), str(other)], "is inside a run's checkpoints/"),
+        ([str(source), str(source.parent / "policy.npz")], "is inside a run's checkpoints/"),
+    ]
+    moved = tmp_path / "ckpt_copy.npz"  # a checkpoint outside any checkpoints/ folder
+    moved.write_bytes(other.read_bytes())
+    cases.append(([str(source), str(moved)], "is a training checkpoint"))
+    for argv, match in cases:
+        assert run_cli(export_main, "export", argv) == 2, argv
+        err = capsys.readouterr().err
+        assert match in err, err
+    assert {p: p.read_bytes() for p in (source, other)} == before
+    assert not (source.parent / "policy.npz").exists()
+    ckpt.load_checkpoint(moved)  # untouched
+    # an existing exported policy may be replaced
+    out = tmp_path / "policy.npz"
+    assert run_cli(export_main, "export", [str(source), str(out)]) == 0
+    assert run_cli(export_main, "export", [str(tmp_path / "other"), str(out)]) == 0
+    assert load_exported(out).obs_mean is None  # the second (unnormalised) run's
+
+
+def test_truncated_newest_checkpoint_falls_back_to_an_intact_one(tmp_path):
+    older = make_run(tmp_path / "run", "MARA", True)
+    newer = older.with_name(ckpt.checkpoint_name(7))
+    newer.write_bytes(older.read_bytes()[:-100])  # a crash or a full disk
+    messages = []
+    found = ckpt.find_checkpoint(tmp_path / "run", warn=messages.append)
+    assert found == older
+    assert len(messages) == 1 and newer.name in messages[0] and str(older) in messages[0]
+    policy = make_policy(str(tmp_path / "run"))  # the loaders use it too
+    assert policy.obs_stats is not None
+    result = _run("mara_mjx.export", str(tmp_path / "run"), str(tmp_path / "p.npz"))
+    assert result.returncode == 0, result.stderr
+    assert f"using {older}" in result.stderr
+    older.write_bytes(b"also broken")
+    with pytest.raises(ckpt.CheckpointError, match="no checkpoint .* is readable"):
+        ckpt.find_checkpoint(tmp_path / "run", warn=messages.append)
 
 
 def test_reward_shape_cli(tmp_path):

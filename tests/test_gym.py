@@ -17,7 +17,8 @@ from gymnasium.utils.env_checker import check_env
 from gymnasium.vector import AutoresetMode
 
 import mara_mjx
-from mara_mjx.gym import TASK_NAMES, MaraGymEnv, MaraVectorEnv, gym_id
+from mara_mjx.gym import TASK_NAMES, MaraGymEnv, gym_id
+from mara_mjx.gym_vector import MaraVectorEnv
 
 NOISE = 0.05  # reset_noise: makes reset observations depend on the key
 HORIZON = 2
@@ -44,6 +45,19 @@ def venv() -> MaraVectorEnv:
         vectorization_mode="vector_entry_point",
         max_episode_steps=HORIZON,
         reset_noise=NOISE,
+        autoreset_mode="same_step",
+    )
+
+
+@pytest.fixture(scope="module")
+def venv_next() -> MaraVectorEnv:
+    """The default autoreset mode, NEXT_STEP."""
+    return gymnasium.make_vec(
+        gym_id("MARA"),
+        num_envs=N,
+        vectorization_mode="vector_entry_point",
+        max_episode_steps=HORIZON,
+        reset_noise=NOISE,
     )
 
 
@@ -52,7 +66,7 @@ def test_ids_registered_without_time_limit():
         spec = gymnasium.spec(gym_id(task))
         assert spec.max_episode_steps is None
         assert spec.kwargs == {"task": task}
-        assert spec.vector_entry_point == "mara_mjx.gym:MaraVectorEnv"
+        assert spec.vector_entry_point == "mara_mjx.gym_vector:MaraVectorEnv"
 
 
 def test_make_kwargs_map_to_env_options():
@@ -135,8 +149,8 @@ def test_bad_actions_raise(gym_envs):
 
 
 def test_vector_env_matches_single_env_through_autoreset(gym_envs, venv):
-    """MaraVectorEnv(N) == N single envs run by the jitted env.reset/env.step with the
-    keys BatchedEnv uses, including the SAME_STEP autoreset at the 2-step horizon."""
+    """MaraVectorEnv(N, "same_step") == N single envs run by the jitted env.reset/env.step
+    with the keys BatchedEnv uses, including the SAME_STEP autoreset at the 2-step horizon."""
     assert isinstance(venv, MaraVectorEnv)
     assert venv.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
     assert venv.observation_space.shape == (N, 12)
@@ -167,17 +181,24 @@ def test_vector_env_matches_single_env_through_autoreset(gym_envs, venv):
             np.testing.assert_array_equal(info["_final_obs"], [True] * N)
             final = np.stack(info["final_obs"])
             np.testing.assert_allclose(final, np.stack([r.obs for r in refs]), atol=1e-5)
-            np.testing.assert_allclose(info["episode"]["r"], returns, atol=1e-4)
-            np.testing.assert_array_equal(info["episode"]["l"], [HORIZON] * N)
+            ended = info["final_info"]
+            np.testing.assert_allclose(ended["episode_return"], returns, atol=1e-4)
+            np.testing.assert_array_equal(ended["episode_length"], [HORIZON] * N)
             np.testing.assert_allclose(
-                info["final_info"]["distance"], [r.metrics["distance"] for r in refs], atol=1e-5
+                ended["distance"], [r.metrics["distance"] for r in refs], atol=1e-5
             )
+            assert "episode" not in info  # RecordEpisodeStatistics's key, left to it
             fresh = []
             for r in refs:  # BatchedEnv: split the env's key, reset with the second half
                 keep, reset_key = jax.random.split(r.key)
                 fresh.append(single._jit_reset(reset_key, r.params).replace(key=keep))
             refs = fresh
             assert not np.allclose(obs[:, :6], final[:, :6])
+            # top-level infos describe `obs`, the new episode's first state
+            np.testing.assert_array_equal(info["episode_length"], [0] * N)
+            np.testing.assert_allclose(
+                info["distance"], [r.metrics["distance"] for r in refs], atol=1e-5
+            )
         else:
             assert truncated.sum() == 0 and "final_obs" not in info
         np.testing.assert_allclose(obs, np.stack([r.obs for r in refs]), atol=1e-5)
@@ -199,6 +220,86 @@ def test_vector_env_bad_input(venv):
     with pytest.raises(ValueError, match="dtype"):
         venv.step(np.full((N, 6), "a"))
     with pytest.raises(ValueError, match="one int"):
-        venv.reset(seed=[1, 2, 3])
+        venv.reset(seed="1")
+    with pytest.raises(ValueError, match="list of num_envs"):
+        venv.reset(seed=[1, 2])
+    # a list of N seeds: env i starts from jax.random.key(seed[i]), whatever its position
+    obs_list, _ = venv.reset(seed=[5, 6, 7])
+    obs_perm, _ = venv.reset(seed=[7, 5, 6])
+    np.testing.assert_allclose(obs_perm, obs_list[[2, 0, 1]], atol=1e-6)
+    with pytest.raises(ValueError, match="autoreset_mode"):
+        MaraVectorEnv("MARA", num_envs=2, autoreset_mode="disabled")
     with pytest.raises(ValueError, match="num_envs"):
         MaraVectorEnv("MARA", num_envs=0)
+
+
+def test_vector_env_next_step_matches_single_env(gym_envs, venv_next):
+    """NEXT_STEP (the default): the ending step returns the final observation; the next
+    step ignores the action and returns the fresh episode's first observation, reward 0."""
+    assert venv_next.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
+    single = gym_envs["MARA"]
+    obs, _ = venv_next.reset(seed=3)
+    keys = jax.random.split(jax.random.key(3), N)
+    refs = [single._jit_reset(k, single.env.default_params) for k in keys]
+    actions = np.random.default_rng(1).uniform(-0.5, 0.5, (4, N, 6)).astype(np.float32)
+    for t in range(4):
+        obs, reward, terminated, truncated, info = venv_next.step(actions[t])
+        if t == HORIZON:  # the step after the end: reset, action ignored
+            fresh = []
+            for r in refs:
+                keep, reset_key = jax.random.split(r.key)
+                fresh.append(single._jit_reset(reset_key, r.params).replace(key=keep))
+            refs = fresh
+            np.testing.assert_array_equal(reward, np.zeros(N))
+            assert not (terminated | truncated).any()
+            np.testing.assert_array_equal(info["episode_length"], [0] * N)
+        else:
+            refs = [single._jit_step(r, actions[t, i]) for i, r in enumerate(refs)]
+            np.testing.assert_allclose(reward, [r.reward for r in refs], atol=1e-5)
+            np.testing.assert_array_equal(truncated, [t == HORIZON - 1] * N)
+        np.testing.assert_allclose(obs, np.stack([r.obs for r in refs]), atol=1e-5)
+        np.testing.assert_allclose(
+            info["distance"], [r.metrics["distance"] for r in refs], atol=1e-5
+        )
+        assert "final_obs" not in info
+
+
+def test_vector_env_under_gymnasium_wrappers(venv_next):
+    """gymnasium's own vector wrappers stacked as CleanRL does, across episode ends."""
+    from gymnasium.wrappers import vector as wrappers
+
+    envs = wrappers.RecordEpisodeStatistics(venv_next)
+    envs = wrappers.NormalizeObservation(envs)
+    envs = wrappers.NormalizeReward(envs)
+    envs = wrappers.ClipAction(envs)
+    obs, _ = envs.reset(seed=0)
+    assert obs.shape == (N, 12)
+    ended = 0
+    for _ in range(3 * (HORIZON + 1)):
+        obs, reward, terminated, truncated, info = envs.step(envs.action_space.sample())
+        assert np.all(np.isfinite(obs)) and np.all(np.isfinite(reward))
+        if (terminated | truncated).any():
+            ended += 1
+            episode = info["episode"]
+            np.testing.assert_array_equal(episode["l"][info["_episode"]], [HORIZON] * N)
+            assert np.all(episode["t"][info["_episode"]] >= 0)
+    assert ended == 3
+    assert len(venv_stats(envs).return_queue) == 3 * N
+
+
+def venv_stats(envs):
+    """The RecordEpisodeStatistics layer of a wrapper stack."""
+    while not hasattr(envs, "return_queue"):
+        envs = envs.env
+    return envs
+
+
+def test_user_registered_env_gets_a_gym_id():
+    name = "MARAShortTest"
+    if name not in mara_mjx.registered():
+        short = {"max_episode_steps": 5}
+        mara_mjx.register(name, lambda **kw: mara_mjx.make("MARA", **{**short, **kw}))
+    spec = gymnasium.spec(gym_id(name))
+    assert spec.kwargs == {"task": name}
+    env = gymnasium.make(gym_id(name), check_target=False)
+    assert env.unwrapped.max_episode_steps == 5

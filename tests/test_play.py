@@ -26,10 +26,11 @@ from PIL import Image
 
 import mara_mjx
 from mara_mjx import play, render
-from mara_mjx.gym import MaraGymEnv, MaraVectorEnv, gym_id
+from mara_mjx.cli import run_cli
+from mara_mjx.gym import MaraGymEnv, gym_id
+from mara_mjx.gym_vector import MaraVectorEnv
 from mara_mjx.ppo import PPOConfig, RunningStats
 from mara_mjx.ppo import checkpoint as ckpt
-from mara_mjx.ppo.flags import run_cli
 from mara_mjx.ppo.networks import make_network
 
 REPO = Path(__file__).resolve().parents[1]

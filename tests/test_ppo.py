@@ -15,6 +15,8 @@ import numpy as np
 import pytest
 from flax import struct
 
+import mara_mjx
+from mara_mjx.cli import Section, add_flags, overrides
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.ppo import (
     PRESETS,
@@ -32,7 +34,6 @@ from mara_mjx.ppo import (
     update_stats,
 )
 from mara_mjx.ppo import checkpoint as ckpt
-from mara_mjx.ppo.flags import Section, add_flags, overrides
 from mara_mjx.ppo.networks import forward, make_network
 from mara_mjx.ppo.train import stratified_minibatches
 from mara_mjx.rewards import RewardParams
@@ -384,6 +385,17 @@ def test_presets_hold_the_papers_hyperparameters():
     # Overridable in one call; the preset itself is never mutated.
     tuned = default.replace(num_envs=4096, learning_rate=1e-3)
     assert tuned.num_envs == 4096 and default.num_envs == 2048
+    # cpu: the default with the fields of benchmarks/results/cpu/MARA/config.json changed
+    cpu, base = PRESETS["cpu"].to_dict(), default.to_dict()
+    changed = {k: v for k, v in cpu.items() if v != base[k]}
+    assert changed == {
+        "num_envs": 256,
+        "num_steps": 16,
+        "num_minibatches": 4,
+        "learning_rate": 1e-3,
+        "init_log_std": -1.0,
+        "total_timesteps": 3_000_000,
+    }
 
 
 @pytest.mark.parametrize(
@@ -446,6 +458,14 @@ def test_flags_cover_every_field_and_resolve_ambiguity():
 
 
 # --------------------------------------------------------------------- learning
+
+
+def test_toy_env_follows_the_env_contract():
+    """The toy env is a plain class: it works with BatchedEnv and PPO because it has the
+    members of `mara_mjx.Env`, not because it inherits anything."""
+    env = PointReach()
+    assert isinstance(env, mara_mjx.Env)
+    assert isinstance(env.reset(jax.random.key(0)), mara_mjx.EnvStateLike)
 
 
 def test_ppo_learns_the_toy_task(toy_history):

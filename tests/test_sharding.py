@@ -112,7 +112,7 @@ def test_device_count_validation():
 
 
 def test_scaling_study_helpers():
-    from mara_mjx.bench_scaling import add_efficiency, device_counts
+    from mara_mjx.bench.scaling import add_efficiency, device_counts
 
     assert device_counts(None)[0] == 1 and device_counts([1]) == [1]
     with pytest.raises(ValueError, match="not available"):

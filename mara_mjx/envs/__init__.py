@@ -1,6 +1,7 @@
-"""Environments: the MARA arm on MJX, the four tasks, the registry and batching."""
+"""Environments: the `Env` contract (base.py), the MARA arm on MJX (arm.py), the four
+tasks (mara.py), the registry and the batching/auto-reset layer (batched.py)."""
 
-from mara_mjx.envs.base import EnvConfig, EnvParams, EnvState
+from mara_mjx.envs.base import Env, EnvConfig, EnvParams, EnvState, EnvStateLike
 from mara_mjx.envs.batched import BatchedEnv, BatchedState
 from mara_mjx.envs.mara import TASKS, MaraEnv, Task
 from mara_mjx.envs.registry import make, register, registered
@@ -9,9 +10,11 @@ __all__ = [
     "TASKS",
     "BatchedEnv",
     "BatchedState",
+    "Env",
     "EnvConfig",
     "EnvParams",
     "EnvState",
+    "EnvStateLike",
     "MaraEnv",
     "Task",
     "make",

@@ -22,6 +22,7 @@ Drivers (spec section 5):
 from __future__ import annotations
 
 import contextlib
+import importlib.resources
 import io
 import itertools
 from pathlib import Path
@@ -39,8 +40,20 @@ with contextlib.redirect_stdout(io.StringIO()):
 
 from mara_mjx.envs.geometry import quat_canonical
 
-ASSETS = Path(__file__).resolve().parents[2] / "assets"
-XML_PATH = ASSETS / "mara.xml"
+
+def asset_path(name: str) -> Path:
+    """A file of the MJCF assets: the installed package's `mara_mjx/assets/` (package data,
+    see pyproject.toml), else a source checkout's top-level `assets/`."""
+    try:
+        installed = Path(str(importlib.resources.files("mara_mjx.assets") / name))
+        if installed.is_file():
+            return installed
+    except ModuleNotFoundError:  # a source checkout (or an editable install): no such package
+        pass
+    return Path(__file__).resolve().parents[2] / "assets" / name
+
+
+XML_PATH = asset_path("mara.xml")
 JOINTS = ("motor1", "motor2", "motor3", "motor4", "motor5", "motor6")
 # Joint velocity limit of the MARA servos (spec section 1): 1.57 rad/s = 90 deg/s.
 MAX_JOINT_SPEED = 1.57

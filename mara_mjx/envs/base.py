@@ -1,4 +1,12 @@
-"""The environment contract: config (static), params (traced), state (episode data).
+"""The environment contract: the `Env` protocol, config (static), params (traced), state
+(episode data).
+
+* `Env` is what every consumer relies on: the batching layer (`BatchedEnv`), the
+  gymnasium and brax adapters, PPO (`make_train`), evaluation, play and the tests' toy
+  env. Any object with these members works with all of them; `MaraEnv` is the one this
+  package ships. Its state must carry `obs`, `reward`, `terminated`, `truncated`, `key`,
+  `params` and `metrics` holding at least `episode_return`, `episode_length` and
+  `collisions` (`EnvStateLike`).
 
 * `EnvConfig` is fixed when an env is built: anything that changes shapes or Python
   control flow (driver, horizon, control period) plus the defaults of the params.
@@ -13,15 +21,64 @@
 from __future__ import annotations
 
 import dataclasses
-import math
-from typing import Any, Literal
+from typing import Any, Literal, Protocol, runtime_checkable
 
 import jax
 import numpy as np
 from flax import struct
 
+from mara_mjx.config import check_vector, is_finite
 from mara_mjx.envs.arm import MAX_JOINT_SPEED
 from mara_mjx.rewards import RewardParams
+
+
+@runtime_checkable
+class EnvStateLike(Protocol):
+    """What consumers read from an env's state (a pytree; batched: leading (N,) axis)."""
+
+    obs: jax.Array  # (observation_size,) float32
+    reward: jax.Array  # ()
+    terminated: jax.Array  # () bool: a real end (no bootstrap)
+    truncated: jax.Array  # () bool: the horizon (GAE bootstraps through it)
+    key: jax.Array  # PRNG key of this environment (auto-reset draws from it)
+    params: Any  # the traced params the episode runs with
+    metrics: dict[str, jax.Array]  # >= episode_return, episode_length, collisions
+
+
+@runtime_checkable
+class Env(Protocol):
+    """A pure, jittable, vmappable environment: the contract of every consumer.
+
+    `reset(key, params)` and `step(state, action)` are pure functions of pytrees (no
+    Python state changes inside), so `jax.jit` and `jax.vmap` apply to them directly.
+    """
+
+    @property
+    def observation_size(self) -> int:
+        """Length of `state.obs`."""
+        ...
+
+    @property
+    def action_size(self) -> int:
+        """Length of an action."""
+        ...
+
+    @property
+    def max_episode_steps(self) -> int:
+        """The horizon: `truncated` is set at this step."""
+        ...
+
+    default_params: Any
+    """The params pytree `reset` uses when given None."""
+
+    def reset(self, key: jax.Array, params: Any = None) -> EnvStateLike:
+        """A new episode's first state (params None: `default_params`)."""
+        ...
+
+    def step(self, state: Any, action: jax.Array) -> EnvStateLike:
+        """The next state after `action` (action_size,)."""
+        ...
+
 
 DRIVERS = ("train", "real")
 DEFAULT_TARGET_POS = (-0.40028, 0.095615, 0.72466)
@@ -44,7 +101,10 @@ METRIC_KEYS = (
 
 @dataclasses.dataclass(frozen=True)
 class EnvConfig:
-    """Configuration of one MARA task. Every field can be overridden in `make`."""
+    """Configuration of one MARA task. Every field can be overridden in `make`.
+
+    Like every config (`mara_mjx.config`): frozen, one docstring per field (the CLIs'
+    help), validated in `__post_init__` with errors naming the field."""
 
     driver: Literal["train", "real"] = "train"
     """'train': joints reach commands at once (kinematics + collision only, the paper's
@@ -79,17 +139,17 @@ class EnvConfig:
             )
         if not 1 <= self.max_episode_steps < 2**30:
             raise ValueError(f"max_episode_steps={self.max_episode_steps} must be in [1, 2**30)")
-        if not (_finite(self.control_dt) and self.control_dt > 0):
+        if not (is_finite(self.control_dt) and self.control_dt > 0):
             raise ValueError(f"control_dt={self.control_dt!r} must be a finite number > 0 (s)")
-        if not (_finite(self.velocity) and 0 < self.velocity <= MAX_JOINT_SPEED):
+        if not (is_finite(self.velocity) and 0 < self.velocity <= MAX_JOINT_SPEED):
             raise ValueError(
                 f"velocity={self.velocity!r} is not valid: the real driver's servo speed must be "
                 f"in (0, {MAX_JOINT_SPEED}] rad/s (the MARA joint speed limit)"
             )
-        if not (_finite(self.reset_noise) and 0 <= self.reset_noise <= 0.5):
+        if not (is_finite(self.reset_noise) and 0 <= self.reset_noise <= 0.5):
             raise ValueError(f"reset_noise={self.reset_noise!r} must be in [0, 0.5] rad")
-        _check_vector("target_pos", self.target_pos, 3)
-        _check_vector("target_quat", self.target_quat, 4)
+        check_vector("target_pos", self.target_pos, 3)
+        check_vector("target_quat", self.target_quat, 4)
         if np.linalg.norm(self.target_quat) < 1e-6:
             raise ValueError("target_quat must be a non-zero quaternion (w, x, y, z)")
         if not isinstance(self.reward, RewardParams):
@@ -98,7 +158,7 @@ class EnvConfig:
             )
         for f in dataclasses.fields(RewardParams):
             v = getattr(self.reward, f.name)
-            if not _finite(v):
+            if not is_finite(v):
                 raise ValueError(f"reward.{f.name}={v!r} must be a finite number")
         if self.reward.done <= 0 or self.reward.alpha <= 0:
             raise ValueError("reward.alpha and reward.done must be > 0")
@@ -131,24 +191,6 @@ class EnvConfig:
             f.name: float(getattr(self.reward, f.name)) for f in dataclasses.fields(RewardParams)
         }
         return out
-
-
-def _finite(x: Any) -> bool:
-    try:
-        return math.isfinite(float(x))
-    except (TypeError, ValueError):
-        return False
-
-
-def _check_vector(name: str, value: Any, size: int) -> None:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"{name} must be {size} numbers, got {value!r}") from e
-    if arr.shape != (size,):
-        raise ValueError(f"{name} must have shape ({size},), got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name}={arr.tolist()} must be finite")
 
 
 @struct.dataclass

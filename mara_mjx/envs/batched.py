@@ -28,7 +28,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from mara_mjx import sharding
-from mara_mjx.envs.base import EnvParams, EnvState  # noqa: F401
+from mara_mjx.envs.base import Env, EnvParams, EnvState  # noqa: F401
 
 
 @struct.dataclass
@@ -52,12 +52,13 @@ class BatchedState:
 
 
 class BatchedEnv:
-    """Vectorised, auto-resetting wrapper of one env for `num_envs` environments."""
+    """Vectorised, auto-resetting wrapper of one env for `num_envs` environments. `env`:
+    anything that follows the `mara_mjx.envs.base.Env` contract."""
 
     RESET_STRATEGIES = ("select", "cond")
 
     def __init__(
-        self, env, num_envs: int, reset_strategy: str = "select", devices: int | None = None
+        self, env: Env, num_envs: int, reset_strategy: str = "select", devices: int | None = None
     ):
         if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
@@ -83,9 +84,18 @@ class BatchedEnv:
         return self.env.action_size
 
     def reset(self, key: jax.Array, params: EnvParams | None = None) -> BatchedState:
-        """Reset all environments. `params`: None (env defaults), one EnvParams shared by
-        all, or an EnvParams with a leading (N,) axis (per-environment values)."""
-        keys = jax.random.split(key, self.num_envs)
+        """Reset all environments. `key`: one PRNG key (split into N) or N keys, shape
+        (N,), one per environment. `params`: None (env defaults), one EnvParams shared
+        by all, or an EnvParams with a leading (N,) axis (per-environment values)."""
+        typed = jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
+        if typed and key.shape == (self.num_envs,):
+            keys = key
+        elif typed and key.shape != ():
+            raise ValueError(
+                f"key must be one PRNG key or {self.num_envs} keys, got shape {key.shape}"
+            )
+        else:  # one typed key, or one raw uint32 key (jax.random.PRNGKey)
+            keys = jax.random.split(key, self.num_envs)
         params = self._batch_params(params)
         s = self._reset(keys, params)
         zeros = jnp.zeros(self.num_envs)

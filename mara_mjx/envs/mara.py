@@ -35,6 +35,7 @@ Usage:
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -106,18 +107,13 @@ class MaraEnv:
         return self.task.name
 
     @property
-    def observation_size(self) -> int:
-        return self.observation_layout["v"][1]
+    def observation_layout(self) -> list[dict[str, Any]]:
+        """The observation's parts in order: name, [start, stop), units, description."""
+        return observation_layout(self.task.orientation)
 
     @property
-    def observation_layout(self) -> dict[str, tuple[int, int]]:
-        """Observation part -> (start, stop) on the last axis: q, e, (quat_err,) v."""
-        sizes = [("q", 6), ("e", 3)] + ([("quat_err", 4)] if self.task.orientation else [])
-        layout, start = {}, 0
-        for name, size in [*sizes, ("v", 3)]:
-            layout[name] = (start, start + size)
-            start += size
-        return layout
+    def observation_size(self) -> int:
+        return self.observation_layout[-1]["stop"]
 
     @property
     def action_size(self) -> int:
@@ -278,7 +274,8 @@ class MaraEnv:
         quat_err = quat_mul(pose.tcp_quat, quat_conj(params.target_quat))
         v = pose.tcp_jac @ qvel
         theta = rewards.orientation_angle(quat_err)
-        parts = [q, e, quat_err, v] if self.task.orientation else [q, e, v]
+        values = {"q": q, "e": e, "quat_err": quat_err, "v": v}
+        parts = [values[p["name"]] for p in self.observation_layout]
         metrics = {
             "distance": rewards.rms_distance(e),
             "position_error": jnp.abs(e),
@@ -286,6 +283,30 @@ class MaraEnv:
             "orientation_error": jnp.abs(quat_to_euler(quat_err)),
         }
         return jnp.concatenate(parts), metrics, theta
+
+
+# name, size, units, description: the observation in order (the module docstring's table)
+OBSERVATION_PARTS = (
+    ("q", 6, "rad", "joint positions motor1..motor6"),
+    ("e", 3, "m", "p_tcp - p_target, world frame"),
+    ("quat_err", 4, "", "quat_tcp (x) conj(quat_target), (w, x, y, z), quat_tcp w >= 0"),
+    ("v", 3, "m/s", "TCP linear velocity J_pos(q) qdot, world frame"),
+)
+
+
+def observation_layout(orientation: bool) -> list[dict[str, Any]]:
+    """Names, slices [start, stop), units of the observation of a task with or without
+    orientation (quat_err is in the Orient tasks only)."""
+    layout, start = [], 0
+    for name, size, units, description in OBSERVATION_PARTS:
+        if name == "quat_err" and not orientation:
+            continue
+        layout.append(
+            {"name": name, "start": start, "stop": start + size, "units": units,
+             "description": description}
+        )  # fmt: skip
+        start += size
+    return layout
 
 
 def _unit(quat) -> np.ndarray:

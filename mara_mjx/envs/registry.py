@@ -12,6 +12,16 @@ from typing import Any
 from mara_mjx.envs.mara import TASKS, MaraEnv, Task, default_config
 
 _REGISTRY: dict[str, Callable[..., Any]] = {}
+# Called with each newly registered name (the gymnasium adapter registers an id), so that
+# nothing on this floor imports the adapters above it.
+_LISTENERS: list[Callable[[str], None]] = []
+
+
+def on_register(listener: Callable[[str], None]) -> None:
+    """Call `listener(name)` for every registered name, now and at each later `register`."""
+    _LISTENERS.append(listener)
+    for name in _REGISTRY:
+        listener(name)
 
 
 def register(name: str, factory: Callable[..., Any], *, overwrite: bool = False) -> None:
@@ -23,6 +33,8 @@ def register(name: str, factory: Callable[..., Any], *, overwrite: bool = False)
     if name in _REGISTRY and not overwrite:
         raise ValueError(f"env {name!r} is already registered; pass overwrite=True to replace it")
     _REGISTRY[name] = factory
+    for listener in _LISTENERS:
+        listener(name)
 
 
 def registered() -> tuple[str, ...]:

@@ -4,7 +4,8 @@ Pure pieces:        gae, ppo_loss, ActorCritic, gaussian_log_prob, gaussian_entr
                     RunningStats, update_stats, normalize
 Training:           make_train(env, PPOConfig, updates_per_call) -> Trainer(init, run, ...)
 Config:             PPOConfig, RunConfig, EvalConfig, PRESETS ("default", "paper", "ros2learn")
-Policy artefact:    make_policy(checkpoint_or_params, config) -> Policy (fn(obs) -> action)
+Policy artefact:    make_policy(checkpoint_or_params, config) -> Policy (fn(obs) -> action),
+                    load_policy(checkpoint file or run folder)
 Checkpoints:        save_checkpoint, load_checkpoint, find_checkpoint
 Evaluation:         evaluate(env, policy, EvalConfig) -> EvalResult, format_table
 
@@ -29,7 +30,7 @@ from mara_mjx.ppo.networks import (
     normalize,
     update_stats,
 )
-from mara_mjx.ppo.policy import Policy, make_policy
+from mara_mjx.ppo.policy import Policy, load_policy, make_policy
 from mara_mjx.ppo.train import RunnerState, Trainer, make_lr_schedule, make_train
 
 __all__ = [
@@ -54,6 +55,7 @@ __all__ = [
     "gaussian_entropy",
     "gaussian_log_prob",
     "load_checkpoint",
+    "load_policy",
     "make_lr_schedule",
     "make_policy",
     "make_train",

@@ -1,4 +1,4 @@
-"""Checkpoints: one .npz file per checkpoint, written atomically.
+"""Checkpoint I/O: one .npz file per checkpoint, written atomically, and finding them.
 
 A checkpoint holds every leaf of the `RunnerState` (params, optimiser state, observation
 statistics, the state of every env, the PRNG key, the update count) under a readable
@@ -9,17 +9,20 @@ python/jax/mujoco/flax/optax/numpy and the git commit when available. PRNG keys 
 stored as their raw uint32 key data.
 
 Writes go to a temporary file in the same folder, then `os.replace`, so a crash never
-leaves a half-written checkpoint under the final name.
+leaves a half-written checkpoint under the final name; a checkpoint damaged anyway is
+skipped, with a warning, by `find_checkpoint` on a run folder.
+
+Naming: <run folder>/checkpoints/ckpt_<update:08d>.npz. Loading a policy from a
+checkpoint is `mara_mjx.ppo.policy`'s; run folders (provenance, pruning, the env of a
+run) are `mara_mjx.runs`'.
 """
 
 from __future__ import annotations
 
 import json
 import os
-import platform
 import re
-import subprocess
-from importlib import metadata
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -156,137 +159,42 @@ def list_checkpoints(run_dir: str | os.PathLike) -> list[Path]:
     return [p for _, p in sorted(found)]
 
 
-def find_checkpoint(path: str | os.PathLike) -> Path:
-    """A checkpoint file as given, or the newest one of a run folder."""
+def find_checkpoint(path: str | os.PathLike, warn: Any = None) -> Path:
+    """A checkpoint file as given, or the newest readable one of a run folder.
+
+    A run folder's newest checkpoint that does not load (truncated by a crash or a full
+    disk, say) is skipped for the next older one; `warn(message)` (default: print to
+    stderr) names the skipped file and the one used. CheckpointError when none loads.
+    """
     path = Path(path)
-    if path.is_dir():
-        found = list_checkpoints(path)
-        if not found:
-            raise CheckpointError(
-                f"run folder {str(path)!r} has no checkpoints (expected "
-                f"{CHECKPOINT_DIR}/ckpt_<update>.npz inside it)"
-            )
-        return found[-1]
-    if not path.exists():
-        raise CheckpointError(f"checkpoint or run folder {str(path)!r} does not exist")
-    return path
-
-
-def run_dir_of(checkpoint: Path) -> Path:
-    """The run folder a checkpoint belongs to."""
-    parent = checkpoint.resolve().parent
-    return parent.parent if parent.name == CHECKPOINT_DIR else parent
-
-
-def prune_checkpoints(run_dir: str | os.PathLike, keep: int) -> None:
-    """Delete all but the newest `keep` checkpoints of a run folder."""
-    for old in list_checkpoints(run_dir)[:-keep]:
-        old.unlink(missing_ok=True)
-
-
-def env_overrides(env_config: dict[str, Any]) -> dict[str, Any]:
-    """`make(name, **env_overrides(cfg))` rebuilds an env from `EnvConfig.to_dict()`."""
-    flat = {k: v for k, v in env_config.items() if k != "reward"}
-    flat.update(env_config.get("reward", {}))
-    return flat
-
-
-def make_env(meta: dict[str, Any], **overrides: Any):
-    """The env a checkpoint was trained on (its saved name and config), with `overrides`
-    (EnvConfig fields) on top; CheckpointError if the env is not registered, the options
-    are invalid, or its observation size is not the policy's."""
-    import mara_mjx
-
-    name = meta["env_name"]
-    if name not in mara_mjx.registered():
+    if not path.is_dir():
+        if not path.exists():
+            raise CheckpointError(f"checkpoint or run folder {str(path)!r} does not exist")
+        return path
+    found = list_checkpoints(path)
+    if not found:
         raise CheckpointError(
-            f"checkpoint env {name!r} is not registered; registered: {mara_mjx.registered()}"
+            f"run folder {str(path)!r} has no checkpoints (expected "
+            f"{CHECKPOINT_DIR}/ckpt_<update>.npz inside it); if its run was stopped before "
+            "the first checkpoint, start it again with the same --out"
         )
-    try:
-        env = mara_mjx.make(name, **{**env_overrides(meta["env_config"]), **overrides})
-    except ValueError as e:
-        raise CheckpointError(f"cannot build env {name}: {e}") from e
-    if env.observation_size != meta["observation_size"]:
-        raise CheckpointError(
-            f"env {name} observes {env.observation_size} values, the policy expects "
-            f"{meta['observation_size']}"
-        )
-    return env
-
-
-def load_policy(path: str | os.PathLike):
-    """The deterministic `Policy` of a checkpoint file or run folder."""
-    return policy_from_checkpoint(*load_checkpoint(find_checkpoint(path)))
-
-
-def policy_from_checkpoint(arrays: dict[str, np.ndarray], meta: dict[str, Any]):
-    """The deterministic `Policy` from `load_checkpoint` output."""
-    from mara_mjx.ppo.config import PPOConfig
-    from mara_mjx.ppo.networks import RunningStats, make_network
-    from mara_mjx.ppo.policy import Policy
-
-    try:
-        config = PPOConfig.from_dict(meta["ppo"])
-    except (TypeError, ValueError) as e:
-        raise CheckpointError(f"checkpoint holds an invalid PPO config: {e}") from e
-    network = make_network(config, meta["action_size"])
-    obs = jax.ShapeDtypeStruct((meta["observation_size"],), jnp.float32)
-    template = jax.eval_shape(network.init, jax.random.key(0), obs, obs)
-    params = arrays_to_state(arrays, template, prefix="params/")
-    stats = None
-    if config.normalize_obs:
-        stats = arrays_to_state(arrays, RunningStats.create(meta["observation_size"]), "obs_stats/")
-    return Policy(params=params, obs_stats=stats, config=config, action_size=meta["action_size"])
-
-
-def write_json(path: str | os.PathLike, data: Any) -> Path:
-    """Write `data` as indented JSON, atomically (temporary file + os.replace)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(json.dumps(data, indent=2) + "\n")
-    os.replace(tmp, path)
-    return path
-
-
-def check_writable(folder: str | os.PathLike) -> Path:
-    """Create `folder` if needed and check a file can be written there; OSError if not."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    probe = folder / f".write-test-{os.getpid()}"
-    probe.write_bytes(b"")
-    probe.unlink()
-    return folder
-
-
-def provenance() -> dict[str, Any]:
-    """Versions of the software that matters for reproducing a run, and the git commit."""
-    versions = {"python": platform.python_version()}
-    for package in ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "numpy", "mara_mjx"):
+    skipped = []
+    for candidate in reversed(found):
         try:
-            versions[package] = metadata.version(package)
-        except metadata.PackageNotFoundError:
-            versions[package] = None
-    versions["jax_backend"] = jax.default_backend()
-    versions["devices"] = [str(d.device_kind) for d in jax.devices()]
-    return {"versions": versions, "git_commit": git_commit()}
+            load_checkpoint(candidate)
+        except CheckpointError as e:
+            skipped.append(f"{candidate.name} ({e})")
+            continue
+        if skipped:
+            message = (
+                f"warning: skipped unreadable checkpoint(s) {'; '.join(skipped)}; using {candidate}"
+            )
+            (warn or _stderr)(message)
+        return candidate
+    raise CheckpointError(
+        f"no checkpoint of run folder {str(path)!r} is readable: {'; '.join(skipped)}"
+    )
 
 
-def git_commit() -> str | None:
-    """HEAD of the repository this package lives in ('+dirty' if modified), or None."""
-    root = Path(__file__).resolve().parents[2]
-    try:
-        commit = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=5
-        )
-        if commit.returncode != 0:
-            return None
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            timeout=5,
-        )
-        return commit.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
-    except (OSError, subprocess.SubprocessError):
-        return None
+def _stderr(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)

@@ -6,53 +6,24 @@
     PRESETS      {"default", "paper", "ros2learn"} -> PPOConfig
 
 The CLIs (`python -m mara_mjx.train`, `python -m mara_mjx.evaluate`) generate one flag per
-field from these classes (`mara_mjx.ppo.flags`), with the field docstrings as help text.
+field from these classes (`mara_mjx.cli`), with the field docstrings as help text; the
+shared config machinery (to_dict/from_dict/replace, validators) is `mara_mjx.config`.
 """
 
 from __future__ import annotations
 
-import ast
 import dataclasses
-import functools
-import inspect
 import math
-import textwrap
-from typing import Any, Literal, TypeVar
+from typing import Literal
+
+from mara_mjx.config import ConfigMixin as _ConfigMixin
+from mara_mjx.config import check_int as _check_int
+from mara_mjx.config import check_range as _check_range
+from mara_mjx.config import is_int as _is_int
 
 LR_SCHEDULES = ("linear", "exp", "constant")
 # The optimiser's step counter is an int32 inside the jitted update.
 _MAX_OPTIMIZER_STEPS = 2**31 - 1
-
-C = TypeVar("C")
-
-
-class _ConfigMixin:
-    """to_dict / from_dict / replace shared by the config dataclasses."""
-
-    def to_dict(self) -> dict[str, Any]:
-        return {f.name: _plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
-
-    @classmethod
-    def from_dict(cls: type[C], data: dict[str, Any]) -> C:
-        """Build from `to_dict()` output (JSON lists become tuples); unknown keys raise."""
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - names)
-        if unknown:
-            raise ValueError(
-                f"unknown {cls.__name__} field(s) {unknown}; valid fields are {sorted(names)}"
-            )
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
-
-    def replace(self: C, **overrides: Any) -> C:
-        """A new config with `overrides` applied (and validated); unknown names raise."""
-        names = {f.name for f in dataclasses.fields(self)}
-        unknown = sorted(set(overrides) - names)
-        if unknown:
-            raise ValueError(
-                f"unknown {type(self).__name__} field(s) {unknown}; valid fields are "
-                f"{sorted(names)}"
-            )
-        return dataclasses.replace(self, **overrides)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -274,10 +245,11 @@ def reward_curriculum(text: str) -> dict[str, float]:
 
 def for_env(config: PPOConfig, env: Any) -> PPOConfig:
     """`config` with the env-dependent fields resolved (`quat_index` from the env's
-    `observation_layout`, a dict name -> (start, stop); -1 where it has no quat_err)."""
-    layout = getattr(env, "observation_layout", None) or {}
-    block = layout.get("quat_err")
-    index = int(block[0]) if (config.canonical_quat and block is not None) else -1
+    `observation_layout`, a list of {name, start, stop, ...}; -1 where it has no
+    quat_err)."""
+    layout = getattr(env, "observation_layout", None) or []
+    starts = [int(part["start"]) for part in layout if part.get("name") == "quat_err"]
+    index = starts[0] if (config.canonical_quat and starts) else -1
     return config if index == config.quat_index else config.replace(quat_index=index)
 
 
@@ -342,45 +314,6 @@ class EvalConfig(_ConfigMixin):
         _check_range("tolerance_mm", self.tolerance_mm, 0.0, math.inf)
 
 
-@functools.cache
-def field_docs(cls: type) -> dict[str, str]:
-    """The attribute docstrings of a dataclass (the string literal after each field),
-    read from its source; {} where the source is unavailable."""
-    try:
-        tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
-    except (OSError, TypeError):
-        return {}
-    body = tree.body[0].body
-    docs = {}
-    for node, after in zip(body, body[1:], strict=False):
-        is_field = isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
-        is_doc = isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
-        if is_field and is_doc and isinstance(after.value.value, str):
-            docs[node.target.id] = " ".join(after.value.value.split())
-    return docs
-
-
-def _plain(value: Any) -> Any:
-    return list(value) if isinstance(value, tuple) else value
-
-
-def _is_int(x: Any) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool)
-
-
-def _check_int(name: str, value: Any, minimum: int) -> None:
-    if not _is_int(value) or value < minimum:
-        raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
-
-
-def _check_range(name: str, value: Any, low: float, high: float, low_open: bool = False) -> None:
-    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-    ok = ok and (value > low if low_open else value >= low) and value <= high
-    if not ok:
-        bracket = "(" if low_open else "["
-        raise ValueError(f"{name}={value!r} must be a finite number in {bracket}{low}, {high}]")
-
-
 PRESETS: dict[str, PPOConfig] = {
     # For thousands of environments on one GPU (benchmarks/NOTES.md, sections 4 and 6).
     # 2048 x 32 and reward_scale 0.01 were the fastest to 1 mm of the shapes and scales
@@ -423,3 +356,16 @@ PRESETS: dict[str, PPOConfig] = {
         vf_coef=1.0,
     ),
 }
+
+# A laptop CPU (2 cores): the default with 256 envs x 16 steps, 4 minibatches, a higher
+# learning rate and a narrower initial policy (sigma e^-1 = 0.37 rad instead of 1 rad),
+# which takes ~50x fewer env steps to 5 mm than the default's 31 M (MARA, measured on a
+# 2-core CPU: benchmarks/results/cpu/, benchmarks/NOTES.md "A CPU recipe").
+PRESETS["cpu"] = PRESETS["default"].replace(
+    num_envs=256,
+    num_steps=16,
+    num_minibatches=4,
+    learning_rate=1e-3,
+    init_log_std=-1.0,
+    total_timesteps=3_000_000,
+)

@@ -9,6 +9,9 @@ scripts' stop condition) or at the horizon (`max_episode_steps`); its final posi
 error (mm, per axis) and orientation error (deg, per axis: |roll|, |pitch|, |yaw| of
 quat_err) are those of that step. The table reports mean +- std (numpy's population
 std) over the episodes, beside the paper's numbers.
+
+The episode protocol (`episode_plan`, `reached_tolerance`, `episode_record`) is shared
+with `python -m mara_mjx.play`, which plays the same episodes one at a time on the host.
 """
 
 from __future__ import annotations
@@ -83,27 +86,42 @@ class EvalResult:
         }
 
 
+def episode_plan(env: Any, config: EvalConfig) -> tuple[Any, jax.Array]:
+    """(params, keys): the env params of every episode (the reset noise) and the
+    (episodes,) keys, episode i from key i."""
+    params = env.make_params(reset_noise=config.noise)
+    return params, jax.random.split(jax.random.key(config.seed), config.episodes)
+
+
+def reached_tolerance(metrics: dict[str, jax.Array], config: EvalConfig) -> jax.Array:
+    """The stop rule: every axis of |e| within tolerance_mm (never when it is 0)."""
+    error = metrics["position_error"]
+    if config.tolerance_mm <= 0:
+        return jnp.zeros(jnp.shape(error)[:-1], bool)
+    return jnp.all(error <= config.tolerance_mm / 1000.0, axis=-1)
+
+
+def episode_record(state: Any, reached: jax.Array) -> dict[str, jax.Array]:
+    """EvalResult's fields of (a batch of) states at their stop step."""
+    m = state.metrics
+    return {
+        "position_error_mm": 1000.0 * m["position_error"],
+        "orientation_error_deg": jnp.degrees(m["orientation_error"]),
+        "distance_mm": 1000.0 * m["distance"],
+        "steps": state.step,
+        "reached": reached,
+        "collisions": m["collisions"],
+        "episode_return": m["episode_return"],
+    }
+
+
 def make_evaluate(env: Any, config: EvalConfig) -> Callable[[Policy], dict[str, jax.Array]]:
     """A jitted fn(policy) -> per-episode arrays (see EvalResult) for this env and config.
     The policy is an argument (a pytree), so one compile serves every checkpoint."""
-    params = env.make_params(reset_noise=config.noise)
-    keys = jax.random.split(jax.random.key(config.seed), config.episodes)
-    tolerance = config.tolerance_mm / 1000.0
+    params, keys = episode_plan(env, config)
     horizon = env.max_episode_steps
     reset = jax.vmap(env.reset, in_axes=(0, None))
     step = jax.vmap(env.step)
-
-    def record(state) -> dict[str, jax.Array]:
-        m = state.metrics
-        return {
-            "position_error_mm": 1000.0 * m["position_error"],
-            "orientation_error_deg": jnp.degrees(m["orientation_error"]),
-            "distance_mm": 1000.0 * m["distance"],
-            "steps": state.step,
-            "reached": jnp.zeros(config.episodes, bool),
-            "collisions": m["collisions"],
-            "episode_return": m["episode_return"],
-        }
 
     def evaluate(policy: Policy) -> dict[str, jax.Array]:
         state = reset(keys, params)
@@ -115,9 +133,7 @@ def make_evaluate(env: Any, config: EvalConfig) -> Callable[[Policy], dict[str, 
         def body(carry):
             state, active, rec, t = carry
             state = step(state, policy(state.obs))
-            new = record(state)
-            if tolerance > 0:
-                new["reached"] = jnp.all(state.metrics["position_error"] <= tolerance, axis=-1)
+            new = episode_record(state, reached_tolerance(state.metrics, config))
             keep = lambda r, n: jnp.where(  # noqa: E731
                 active.reshape(active.shape + (1,) * (n.ndim - 1)), n, r
             )
@@ -126,7 +142,8 @@ def make_evaluate(env: Any, config: EvalConfig) -> Callable[[Policy], dict[str, 
             return state, active, rec, t + 1
 
         active = jnp.ones(config.episodes, bool)
-        init = (state, active, record(state), jnp.zeros((), jnp.int32))
+        first = episode_record(state, jnp.zeros(config.episodes, bool))
+        init = (state, active, first, jnp.zeros((), jnp.int32))
         _, _, rec, _ = jax.lax.while_loop(running, body, init)
         return rec
 

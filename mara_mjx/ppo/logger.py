@@ -175,8 +175,47 @@ class RunLogger:
 
 
 def read_csv(path: str | os.PathLike) -> list[dict[str, str]]:
+    """The rows of a progress.csv as written (strings), for rewriting it."""
     with open(path, newline="") as f:
         return list(csv.DictReader(f))
+
+
+class ProgressError(ValueError):
+    """A missing, unreadable or incomplete progress.csv."""
+
+
+def read_progress(
+    run: str | os.PathLike, required: Iterable[str] = ("update", "env_steps")
+) -> dict[str, np.ndarray]:
+    """Every column of a run folder's progress.csv (or of a CSV file given directly) as a
+    float array, NaN where empty: the one reader of the logs, for plots and summaries.
+    ProgressError names the file and what is wrong (missing, a `required` column
+    absent, no rows yet, a non-numeric value)."""
+    path = Path(run)
+    if not path.exists():
+        raise ProgressError(f"run folder {str(path)!r} does not exist")
+    csv_path = path / "progress.csv" if path.is_dir() else path
+    if not csv_path.is_file():
+        raise ProgressError(f"run folder {str(path)!r} has no progress.csv")
+    try:
+        with open(csv_path, newline="") as f:
+            reader = csv.DictReader(f)
+            rows = list(reader)
+            fields = reader.fieldnames or []
+    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        raise ProgressError(f"cannot read {str(csv_path)!r}: {e}") from e
+    missing = [c for c in required if c not in fields]
+    if missing:
+        raise ProgressError(f"{str(csv_path)!r} lacks the column(s) {missing}")
+    if not rows:
+        raise ProgressError(f"{str(csv_path)!r} has no rows yet")
+    out = {}
+    for c in fields:
+        try:
+            out[c] = np.array([float(r[c]) if r[c] not in ("", None) else np.nan for r in rows])
+        except (TypeError, ValueError) as e:
+            raise ProgressError(f"{str(csv_path)!r}: column {c!r} is not numeric: {e}") from e
+    return out
 
 
 def save_plots(csv_path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:
@@ -187,10 +226,10 @@ def save_plots(csv_path: str | os.PathLike, out_dir: str | os.PathLike) -> list[
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = read_csv(csv_path)
+    progress = read_progress(csv_path)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    steps = np.array([float(r["env_steps"]) for r in rows])
+    steps = progress["env_steps"]
     plots = [
         ("reward.png", "reward_mean", "mean reward per step", False),
         ("entropy.png", "entropy", "policy entropy (nats)", False),
@@ -198,7 +237,7 @@ def save_plots(csv_path: str | os.PathLike, out_dir: str | os.PathLike) -> list[
     ]
     written = []
     for filename, column, label, log in plots:
-        values = np.array([float(r.get(column) or math.nan) for r in rows])
+        values = progress.get(column, np.full(len(steps), math.nan))
         fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
         ax.plot(steps, values, lw=1.2)
         ax.set_xlabel("env steps")

@@ -4,7 +4,7 @@ A policy is params + config (+ observation statistics when the run normalised th
 deterministic policy is the Gaussian mean: absolute joint targets (rad) for the env,
 which clips them to the joint limits.
 
-    policy = make_policy("runs/MARA-.../checkpoints/ckpt_00000100.npz")
+    policy = make_policy("runs/MARA-.../checkpoints/ckpt_00000100.npz")   # or load_policy
     action = policy(obs)                       # (obs_size,) or (N, obs_size) -> (..., 6)
     action = jax.jit(policy)(obs)              # or pass `policy` into a jitted function:
                                                # it is a pytree (params traced, config static)
@@ -16,8 +16,16 @@ import os
 from typing import Any
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
+from mara_mjx.ppo.checkpoint import (
+    CheckpointError,
+    arrays_to_state,
+    find_checkpoint,
+    load_checkpoint,
+)
 from mara_mjx.ppo.config import PPOConfig
 from mara_mjx.ppo.networks import ActorCritic, RunningStats, forward, make_network
 
@@ -64,8 +72,6 @@ def make_policy(
     if isinstance(checkpoint_or_params, Policy):
         return checkpoint_or_params
     if isinstance(checkpoint_or_params, str | os.PathLike):
-        from mara_mjx.ppo.checkpoint import load_policy
-
         return load_policy(checkpoint_or_params)
     if config is None:
         raise ValueError("make_policy needs the PPOConfig the params were trained with")
@@ -90,3 +96,25 @@ def make_policy(
         config=config,
         action_size=action_size,
     )
+
+
+def load_policy(path: str | os.PathLike) -> Policy:
+    """The deterministic `Policy` of a checkpoint file or run folder (its newest readable
+    checkpoint)."""
+    return policy_from_checkpoint(*load_checkpoint(find_checkpoint(path)))
+
+
+def policy_from_checkpoint(arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> Policy:
+    """The deterministic `Policy` from `mara_mjx.ppo.checkpoint.load_checkpoint` output."""
+    try:
+        config = PPOConfig.from_dict(meta["ppo"])
+    except (TypeError, ValueError) as e:
+        raise CheckpointError(f"checkpoint holds an invalid PPO config: {e}") from e
+    network = make_network(config, meta["action_size"])
+    obs = jax.ShapeDtypeStruct((meta["observation_size"],), jnp.float32)
+    template = jax.eval_shape(network.init, jax.random.key(0), obs, obs)
+    params = arrays_to_state(arrays, template, prefix="params/")
+    stats = None
+    if config.normalize_obs:
+        stats = arrays_to_state(arrays, RunningStats.create(meta["observation_size"]), "obs_stats/")
+    return Policy(params=params, obs_stats=stats, config=config, action_size=meta["action_size"])

@@ -1,4 +1,5 @@
-"""Command-line flags generated from config dataclasses (no flag is written by hand).
+"""The command-line plumbing every CLI shares: flags generated from config dataclasses
+(no flag is written by hand), user errors as one line and exit status 2, JAX setup.
 
 Every field of a section gets `--section.field`; it also gets the short `--field` when no
 earlier section (in the order given) has a field of that name, so `--gamma` is the PPO
@@ -15,7 +16,7 @@ import typing
 from collections.abc import Sequence
 from typing import Any, Literal
 
-from mara_mjx.ppo.config import field_docs
+from mara_mjx.config import field_docs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,6 +28,8 @@ class Section:
     defaults: Any = None
     """An instance whose values the help shows as defaults (None: the class defaults)."""
     exclude: tuple[str, ...] = ()
+    dotted: bool = True
+    """Also offer `--{name}.field` (False: only `--field`, e.g. a subcommand's own flags)."""
 
     def field_names(self) -> list[str]:
         return [f.name for f in dataclasses.fields(self.cls) if f.name not in self.exclude]
@@ -44,16 +47,17 @@ def parse_bool(text: str) -> bool:
 def _argparse_kwargs(hint: Any) -> dict[str, Any]:
     """type / nargs / choices / metavar for a field's type hint."""
     origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if hint is bool:
-        return {"type": parse_bool, "metavar": "{true,false}"}
+    if hint is bool:  # `--flag` alone means true
+        return {"type": parse_bool, "metavar": "{true,false}", "nargs": "?", "const": True}
     if hint in (int, float, str):
         return {"type": hint}
     if origin is Literal:
         return {"type": type(args[0]), "choices": list(args)}
     if origin is tuple:
+        item = {k: v for k, v in _argparse_kwargs(args[0]).items() if k in ("type", "choices")}
         if len(args) == 2 and args[1] is Ellipsis:
-            return {"type": args[0], "nargs": "+"}
-        return {"type": args[0], "nargs": len(args)}
+            return {**item, "nargs": "+"}
+        return {**item, "nargs": len(args)}
     if origin in (typing.Union, types.UnionType):
         for simple in (float, int, str):  # e.g. `jax.Array | float`
             if simple in args:
@@ -72,9 +76,11 @@ def add_flags(parser: argparse.ArgumentParser, sections: Sequence[Section]) -> N
             defaults = section.cls()
         group = parser.add_argument_group(f"{section.name} options ({section.cls.__name__})")
         for name in section.field_names():
-            flags = [f"--{section.name}.{name}"]
+            flags = [f"--{section.name}.{name}"] if section.dotted else []
             if f"--{name}" not in taken:
                 flags.insert(0, f"--{name}")
+            if not flags:
+                raise ValueError(f"flag --{name} of section {section.name} is taken twice")
             taken.update(flags)
             default = getattr(defaults, name)
             shown = " ".join(map(str, default)) if isinstance(default, tuple) else default

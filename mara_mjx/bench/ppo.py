@@ -3,7 +3,7 @@
 train  Our PPO (a `mara_mjx.ppo.PRESETS` preset, default "default") end to end on each
        task: compile time, env steps/s including learning (steady state), and the error
        of the deterministic policy against wall-clock after every jitted call
-       (`Trainer.run` of `--updates-per-call` updates), with the time to 5 mm and 1 mm.
+       (`Trainer.run` of `--updates_per_call` updates), with the time to 5 mm and 1 mm.
        Two error measures per call: `det_error_mm` from the training metrics (mean over
        envs and axes of |e| after one deterministic step from the rollout-end states) and
        the "settled" error of the common scorer below. At the end, the paper's evaluation
@@ -49,7 +49,6 @@ provides JAX's documented drop-in replacement while brax trains (`brax_jax_compa
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import dataclasses
 import functools
@@ -57,7 +56,7 @@ import math
 import sys
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -65,6 +64,7 @@ import numpy as np
 from tqdm import tqdm
 
 import mara_mjx
+from mara_mjx.bench.runner import BenchConfig, Study
 from mara_mjx.plots import finish_figure
 from mara_mjx.ppo import PRESETS, EvalConfig, EvalResult, PPOConfig, make_policy, make_train
 from mara_mjx.ppo.evaluation import make_evaluate
@@ -428,7 +428,79 @@ def _act_ours(policy: Any, obs: jax.Array) -> jax.Array:
 
 
 # ------------------------------------------------------------------------ studies
-def ppo_config(args: argparse.Namespace) -> PPOConfig:
+@dataclasses.dataclass(frozen=True)
+class TrainStudyConfig(BenchConfig):
+    """The train study's settings: a PPO preset, some of its fields overridden."""
+
+    preset: str = "default"
+    """PPO preset (mara_mjx.ppo.PRESETS)."""
+    total: int | None = None
+    """Env steps per run (None: the preset's total_timesteps)."""
+    num_envs: int | None = None
+    """Override of the preset's num_envs."""
+    num_steps: int | None = None
+    """Override of the preset's num_steps."""
+    num_minibatches: int | None = None
+    """Override of the preset's num_minibatches."""
+    update_epochs: int | None = None
+    """Override of the preset's update_epochs."""
+    seed: int | None = None
+    """Override of the preset's seed."""
+    updates_per_call: int = 16
+    """PPO updates per jitted call = per curve point (brax: per epoch)."""
+    episode_length: int = 1024
+    """Horizon of training episodes."""
+    score_episodes: int = 10
+    """Scorer: episodes."""
+    score_steps: int = 100
+    """Scorer: steps per episode."""
+    score_last: int = 10
+    """Scorer: error averaged over the last steps."""
+    eval_episodes: int = 10
+    """Episodes of the final evaluations (train study)."""
+
+    study: ClassVar[str] = "train"
+    QUICK: ClassVar[dict[str, Any]] = {
+        "total": 64,
+        "num_envs": 4,
+        "num_steps": 8,
+        "num_minibatches": 2,
+        "update_epochs": 2,
+        "updates_per_call": 1,
+        "episode_length": 16,
+        "eval_episodes": 2,
+        "score_episodes": 2,
+        "score_steps": 8,
+        "score_last": 4,
+    }
+    POSITIVE: ClassVar[tuple[str, ...]] = (
+        "updates_per_call",
+        "episode_length",
+        "score_episodes",
+        "score_steps",
+        "score_last",
+        "eval_episodes",
+    )
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.preset not in PRESETS:
+            raise ValueError(f"preset={self.preset!r} is not valid; choose one of {list(PRESETS)}")
+        if self.score_last > self.score_steps:
+            raise ValueError("score_last must not exceed score_steps")
+        config = ppo_config(self)  # PPOConfig's own validation, with its messages
+        if self.study == "brax":
+            brax_kwargs(config, self.episode_length)
+
+
+@dataclasses.dataclass(frozen=True)
+class BraxStudyConfig(TrainStudyConfig):
+    """The brax study's settings (eval_episodes unused)."""
+
+    study: ClassVar[str] = "brax"
+
+
+def ppo_config(args: TrainStudyConfig) -> PPOConfig:
     """The preset with the command line's overrides (validated by PPOConfig). For the
     brax study the total is rounded down to whole calls of `updates_per_call` updates
     (at least one), so that brax's epochs and our calls cover the same env steps."""
@@ -449,7 +521,7 @@ def ppo_config(args: argparse.Namespace) -> PPOConfig:
     return config
 
 
-def score_config(args: argparse.Namespace) -> ScoreConfig:
+def score_config(args: TrainStudyConfig) -> ScoreConfig:
     return ScoreConfig(args.score_episodes, args.score_steps, args.score_last)
 
 
@@ -467,7 +539,7 @@ def _eval_summary(env: Any, policy: Any, config: EvalConfig) -> dict[str, Any]:
     }
 
 
-def train_study(args: argparse.Namespace) -> list[dict[str, Any]]:
+def train_study(args: TrainStudyConfig) -> list[dict[str, Any]]:
     """Our PPO on every task: throughput, time to accuracy, final evaluations."""
     config = ppo_config(args)
     scoring = score_config(args)
@@ -506,7 +578,7 @@ def train_study(args: argparse.Namespace) -> list[dict[str, Any]]:
     return records
 
 
-def brax_study(args: argparse.Namespace) -> list[dict[str, Any]]:
+def brax_study(args: BraxStudyConfig) -> list[dict[str, Any]]:
     """brax's PPO and ours on each task, same env steps, snapshots scored alike."""
     config = ppo_config(args)
     scoring = score_config(args)
@@ -658,7 +730,7 @@ def _brax_note(records: list[dict[str, Any]]) -> str:
         "cost 0 on both sides. Ours only, brax has no equivalent: "
         f"{ours_only or 'nothing'}; brax's constant learning rate, Adam eps 1e-8, "
         "tanh-squashed absolute actions and its own initialisation and noise "
-        "parametrisation (`mara_mjx.bench_ppo.brax_kwargs`)."
+        "parametrisation (`mara_mjx.bench.ppo.brax_kwargs`)."
     )
 
 
@@ -679,3 +751,7 @@ BRAX_TABLE: dict[str, Any] = {
     "notes": lambda records: [_brax_note(records)],
     "plot": plot_brax,
 }
+
+
+TRAIN = Study("train", TrainStudyConfig, train_study, TRAIN_TABLE, "our PPO end to end")
+BRAX = Study("brax", BraxStudyConfig, brax_study, BRAX_TABLE, "brax's PPO against ours")

@@ -1,17 +1,17 @@
 """The `scaling` study of `python -m mara_mjx.benchmark`: throughput against devices.
 
-For every device count n in 1, 2, 4, ... up to the devices present (`--device-counts`
+For every device count n in 1, 2, 4, ... up to the devices present (`--device_counts`
 to choose), on the first of `--tasks` (train driver):
 
 env   the batched env step (`BatchedEnv(..., devices=n)`, the env study's random-action
-      `lax.scan`), weak scaling: `--scaling-envs` environments *per device*, so the
+      `lax.scan`), weak scaling: `--envs_per_device` environments *per device*, so the
       global batch grows with n. Compile time apart; steady state = median of
       `--repeats` calls.
 ppo   our PPO (`make_train(..., devices=n)`, the default preset), weak scaling: the
       default 2048 envs x 32 steps *per device* (global num_envs = 2048 n, minibatch
       count unchanged, so minibatches grow with n), and strong scaling: the default
       global batch (2048 envs) split over n devices. env steps/s of `Trainer.run`
-      (`--updates-per-call` updates per call), steady state after a compile call.
+      (`--updates_per_call` updates per call), steady state after a compile call.
 
 Scaling efficiency of n devices = rate(n) / (n rate(1)) for weak scaling, and the same
 formula for strong scaling (the ideal is n times faster on the same batch). Sharding is
@@ -21,15 +21,50 @@ device on its own envs' samples with one gradient all-reduce per minibatch.
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import statistics
 import time
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 
 import mara_mjx
+from mara_mjx.bench.runner import BenchConfig, Study
 from mara_mjx.plots import finish_figure
+
+
+@dataclasses.dataclass(frozen=True)
+class ScalingConfig(BenchConfig):
+    """The scaling study's settings."""
+
+    device_counts: tuple[int, ...] = ()
+    """Device counts to measure (empty: 1, 2, 4, ... and all)."""
+    envs_per_device: int = 16384
+    """Env part: environments per device."""
+    updates_per_call: int = 10
+    """PPO part: updates per timed call."""
+    steps: int = 100
+    """Env part: env steps per timed call."""
+    repeats: int = 5
+    """Timed calls after the first."""
+
+    QUICK: ClassVar[dict[str, Any]] = {
+        "envs_per_device": 64,
+        "updates_per_call": 1,
+        "steps": 4,
+        "repeats": 1,
+    }
+    POSITIVE: ClassVar[tuple[str, ...]] = (
+        "device_counts",
+        "envs_per_device",
+        "updates_per_call",
+        "steps",
+        "repeats",
+    )
+
+    def check_devices(self) -> None:
+        """ValueError if a device count exceeds the devices present (needs the backend)."""
+        device_counts(list(self.device_counts))
 
 
 def _plot(records: list[dict[str, Any]], title: str, path) -> None:
@@ -93,7 +128,7 @@ def device_counts(requested: list[int] | None) -> list[int]:
         bad = [n for n in requested if n < 1 or n > available]
         if bad:
             raise ValueError(
-                f"--device-counts {bad} not available: this machine has {available} device(s)"
+                f"--device_counts {bad} not available: this machine has {available} device(s)"
             )
         return sorted(set(requested))
     counts, n = [], 1
@@ -119,7 +154,7 @@ def _timed(call, repeats: int) -> tuple[float, float]:
 
 
 def time_env_devices(task: str, per_device: int, devices: int, steps: int, repeats: int):
-    from mara_mjx.benchmark import time_env
+    from mara_mjx.bench.env import time_env
 
     record = time_env(task, "train", per_device * devices, steps, repeats, devices=devices)
     return {
@@ -165,18 +200,16 @@ def add_efficiency(records: list[dict[str, Any]]) -> None:
         r["efficiency"] = r["env_steps_per_s"] / (r["devices"] * one) if one else None
 
 
-def scaling_study(args: argparse.Namespace) -> list[dict[str, Any]]:
+def scaling_study(args: ScalingConfig) -> list[dict[str, Any]]:
     from mara_mjx.ppo import PRESETS
 
     task = args.tasks[0]
-    counts = device_counts(getattr(args, "device_counts", None))
-    per_device = 64 if args.quick else getattr(args, "scaling_envs", 16384)
-    steps = 4 if args.quick else args.steps
-    repeats = 1 if args.quick else args.repeats
+    counts = device_counts(list(args.device_counts))
+    per_device, steps, repeats = args.envs_per_device, args.steps, args.repeats
     default = PRESETS["default"]
     if args.quick:
         default = default.replace(num_envs=8, num_steps=4, num_minibatches=2, update_epochs=1)
-    updates = 1 if args.quick else getattr(args, "updates_per_call", 10)
+    updates = args.updates_per_call
     records = []
     for n in counts:
         print(f"scaling: {n} device(s)", flush=True)
@@ -194,3 +227,6 @@ def scaling_study(args: argparse.Namespace) -> list[dict[str, Any]]:
     ]
     add_efficiency(records)
     return records
+
+
+STUDY = Study("scaling", ScalingConfig, scaling_study, SCALING_TABLE, "throughput against devices")

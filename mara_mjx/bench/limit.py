@@ -30,18 +30,61 @@ Per (task, driver, environment count):
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import re
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, ClassVar, Literal
 
 import jax
 import jax.numpy as jnp
 
 import mara_mjx
+from mara_mjx.bench.env import check_drivers
+from mara_mjx.bench.runner import BenchConfig, Study
 from mara_mjx.envs.batched import BatchedEnv
 from mara_mjx.plots import finish_figure
+
+
+@dataclasses.dataclass(frozen=True)
+class LimitConfig(BenchConfig):
+    """The limit study's settings."""
+
+    drivers: tuple[Literal["train", "real"], ...] = ("train", "real")
+    """Drivers to measure."""
+    sizes: tuple[int, ...] = (1024, 16384, 65536)
+    """Environment counts for the train driver."""
+    real_sizes: tuple[int, ...] = (16384,)
+    """Environment counts for the real driver."""
+    steps: int = 100
+    """Env steps per timed call."""
+    repeats: int = 5
+    """Timed calls after the first."""
+    matmul_size: int = 8192
+    """n of the n x n matmuls that measure peak FLOP/s."""
+    copy_size: int = 2**29
+    """float32 elements of the x + 1 that measures memory bandwidth."""
+
+    QUICK: ClassVar[dict[str, Any]] = {
+        "sizes": (4,),
+        "real_sizes": (4,),
+        "steps": 4,
+        "repeats": 1,
+        "matmul_size": 256,
+        "copy_size": 2**20,
+    }
+    POSITIVE: ClassVar[tuple[str, ...]] = (
+        "sizes",
+        "real_sizes",
+        "steps",
+        "repeats",
+        "matmul_size",
+        "copy_size",
+    )
+
+    def __post_init__(self):
+        super().__post_init__()
+        check_drivers(self.drivers)
 
 
 def _best_time(fn: Callable[..., Any], args: tuple, repeats: int) -> float:
@@ -78,7 +121,7 @@ def measure_ceilings(matmul_size: int, copy_size: int, repeats: int) -> dict[str
 def step_cost(task: str, driver: str, num_envs: int) -> dict[str, Any]:
     """XLA's cost analysis of one batched random-target env step (the env study's scan
     body), per env; plus the known trip counts of the module's while loops."""
-    from mara_mjx.benchmark import make_step_body
+    from mara_mjx.bench.env import make_step_body
 
     env = mara_mjx.make(task, driver=driver)
     benv = BatchedEnv(env, num_envs)
@@ -103,9 +146,9 @@ def step_cost(task: str, driver: str, num_envs: int) -> dict[str, Any]:
     }
 
 
-def limit_study(args: argparse.Namespace) -> list[dict[str, Any]]:
+def limit_study(args: LimitConfig) -> list[dict[str, Any]]:
     """Cost per env step vs the measured ceilings, for every task, driver and size."""
-    from mara_mjx.benchmark import time_env
+    from mara_mjx.bench.env import time_env
 
     ceilings = measure_ceilings(args.matmul_size, args.copy_size, max(args.repeats, 3))
     print(
@@ -258,3 +301,6 @@ LIMIT_TABLE: dict[str, Any] = {
     ),
     "plot": plot_limit,
 }
+
+
+STUDY = Study("limit", LimitConfig, limit_study, LIMIT_TABLE, "one env step against the roofline")

@@ -1,0 +1,112 @@
+"""The package's shape: no import cycles, small root modules, one flag spelling.
+
+Static checks (ast and argparse only, nothing compiled): every `import` in every module
+of the package, at module level or inside a function, is an edge; the graph must have
+no cycle. CLI flags are spelled with underscores (`--num_envs`), as the generated ones.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import importlib
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "mara_mjx"
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def import_graph() -> dict[str, set[str]]:
+    """{module: modules of mara_mjx it imports} (a package import counts as its
+    __init__; `from pkg import mod` as `pkg.mod` when that is a module)."""
+    modules = {_module_name(p): p for p in PACKAGE.rglob("*.py")}
+    graph: dict[str, set[str]] = {m: set() for m in modules}
+    for name, path in modules.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            targets = []
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                for a in node.names:
+                    sub = f"{node.module}.{a.name}"
+                    targets.append(sub if sub in modules else node.module)
+            for t in targets:
+                if t in modules and t != name:
+                    graph[name].add(t)
+    return graph
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(n: str) -> list[str] | None:
+        state[n] = 1
+        stack.append(n)
+        for m in sorted(graph[n]):
+            if state.get(m) == 1:
+                return stack[stack.index(m) :] + [m]
+            if m not in state and (cycle := visit(m)):
+                return cycle
+        stack.pop()
+        state[n] = 2
+        return None
+
+    for n in sorted(graph):
+        if n not in state and (cycle := visit(n)):
+            return cycle
+    return None
+
+
+def test_no_import_cycles():
+    graph = import_graph()
+    # a package's __init__ re-exporting its modules is not a cycle with them: drop the
+    # edges from a module to the __init__ of its own package
+    for name, targets in graph.items():
+        graph[name] = {t for t in targets if not name.startswith(t + ".")}
+    assert find_cycle(graph) is None, " -> ".join(find_cycle(graph))
+
+
+def test_ground_floor_imports_nothing_above_it():
+    graph = import_graph()
+    allowed = ("mara_mjx.envs", "mara_mjx.rewards", "mara_mjx.config", "mara_mjx.sharding")
+    for name in graph:
+        if name.startswith(("mara_mjx.envs", "mara_mjx.rewards")):
+            above = [t for t in graph[name] if not t.startswith(allowed)]
+            assert not above, (name, above)
+
+
+def test_root_modules_are_small():
+    for path in PACKAGE.glob("*.py"):
+        lines = len(path.read_text().splitlines())
+        assert lines <= 420, f"{path.name} has {lines} lines"
+
+
+def _parsers() -> list[argparse.ArgumentParser]:
+    from mara_mjx.bench import runner
+
+    parsers = [runner.build_parser("")]
+    for module in ("train", "evaluate", "play"):
+        parsers.append(importlib.import_module(f"mara_mjx.{module}").build_parser())
+    out = []
+    while parsers:
+        p = parsers.pop()
+        out.append(p)
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                parsers += list(action.choices.values())
+    return out
+
+
+@pytest.mark.parametrize("parser", _parsers(), ids=lambda p: p.prog)
+def test_flags_have_one_spelling(parser):
+    for action in parser._actions:
+        for option in action.option_strings:
+            if option.startswith("--") and option != "--help":
+                assert "-" not in option[2:], f"{parser.prog}: {option} (use underscores)"
