@@ -12,9 +12,12 @@ Host side, numpy in and out; the physics runs in JAX (jitted once per instance).
     obs, infos = envs.reset(seed=0)                 # (64, 12) float32, one batched device call
 
 Registered ids: `mara_mjx/MARA-v0`, `mara_mjx/MARAOrient-v0`, `mara_mjx/MARACollision-v0`,
-`mara_mjx/MARACollisionOrient-v0`. Keyword arguments are the env options of
-`mara_mjx.make` (fields of `mara_mjx.EnvConfig`: driver, max_episode_steps, velocity,
-target_pos, target_quat, reset_noise, alpha, ..., done).
+`mara_mjx/MARACollisionOrient-v0`, and the random-target tasks (a new target pose every
+episode) `mara_mjx/MARARandomTarget-v0`, `mara_mjx/MARAOrientRandomTarget-v0`,
+`mara_mjx/MARACollisionRandomTarget-v0`, `mara_mjx/MARACollisionOrientRandomTarget-v0`.
+Keyword arguments are the env options of `mara_mjx.make` (fields of `mara_mjx.EnvConfig`:
+driver, max_episode_steps, velocity, target_pos, target_quat, reset_noise, alpha, ...,
+done; target_min, target_max, target_spread_deg, ... for the random-target tasks).
 
 Horizon: the ids are registered without a gymnasium `TimeLimit`; truncation comes from
 the env's own `max_episode_steps` (1024 by default). `MaraGymEnv(task,
@@ -67,7 +70,16 @@ from gymnasium.vector.utils import batch_space
 
 from mara_mjx.envs import BatchedEnv, make
 
-TASK_NAMES = ("MARA", "MARAOrient", "MARACollision", "MARACollisionOrient")
+TASK_NAMES = (
+    "MARA",
+    "MARAOrient",
+    "MARACollision",
+    "MARACollisionOrient",
+    "MARARandomTarget",
+    "MARAOrientRandomTarget",
+    "MARACollisionRandomTarget",
+    "MARACollisionOrientRandomTarget",
+)
 NAMESPACE = "mara_mjx"
 VERSION = 0
 
@@ -372,7 +384,8 @@ def _numpy_info(metrics: dict[str, Any]) -> dict[str, np.ndarray]:
 
 
 def register_gym_ids() -> None:
-    """Register the four tasks with gymnasium (idempotent; builds nothing)."""
+    """Register the built-in tasks (TASK_NAMES) with gymnasium (idempotent; builds
+    nothing)."""
     for task in TASK_NAMES:
         env_id = gym_id(task)
         if env_id in gymnasium.registry:

@@ -83,14 +83,20 @@ class EvalResult:
         }
 
 
-def make_evaluate(env: Any, config: EvalConfig) -> Callable[[Policy], dict[str, jax.Array]]:
+def make_evaluate(
+    env: Any, config: EvalConfig, params: Any = None
+) -> Callable[[Policy], dict[str, jax.Array]]:
     """A jitted fn(policy) -> per-episode arrays (see EvalResult) for this env and config.
-    The policy is an argument (a pytree), so one compile serves every checkpoint."""
-    params = env.make_params(reset_noise=config.noise)
+    The policy is an argument (a pytree), so one compile serves every checkpoint.
+    `params`: None (`env.make_params(reset_noise=config.noise)` for every episode) or
+    params with a leading (episodes,) axis, one per episode (e.g. each its own target)."""
+    per_episode = params is not None
+    if params is None:
+        params = env.make_params(reset_noise=config.noise)
     keys = jax.random.split(jax.random.key(config.seed), config.episodes)
     tolerance = config.tolerance_mm / 1000.0
     horizon = env.max_episode_steps
-    reset = jax.vmap(env.reset, in_axes=(0, None))
+    reset = jax.vmap(env.reset, in_axes=(0, 0 if per_episode else None))
     step = jax.vmap(env.step)
 
     def record(state) -> dict[str, jax.Array]:
@@ -133,9 +139,10 @@ def make_evaluate(env: Any, config: EvalConfig) -> Callable[[Policy], dict[str, 
     return jax.jit(evaluate)
 
 
-def evaluate(env: Any, policy: Policy, config: EvalConfig) -> EvalResult:
-    """Run the evaluation (compiles once per env and config)."""
-    out = jax.device_get(make_evaluate(env, config)(policy))
+def evaluate(env: Any, policy: Policy, config: EvalConfig, params: Any = None) -> EvalResult:
+    """Run the evaluation (compiles once per env and config); `params` as in
+    `make_evaluate`."""
+    out = jax.device_get(make_evaluate(env, config, params)(policy))
     return EvalResult(**{k: np.asarray(v) for k, v in out.items()})
 
 
