@@ -48,13 +48,13 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from mara_mjx.envs.arm import JOINTS
+from mara_mjx.envs.arm import JOINTS, TABLE_TOP_Z
 
 TRAIN_STREAM = 0
 EVAL_STREAM = 1
 CHUNK = 16384
 """Proposals per numpy batch."""
-MAX_PROPOSALS = 4_000_000
+MAX_PROPOSALS = 1_000_000
 """Proposals tried before a region counts as (nearly) empty."""
 GRID = 6
 """Cells per axis of the box for the position balance."""
@@ -263,6 +263,7 @@ def candidates(
     """Up to `count` distinct collision-free poses in `region` (fewer only if
     `max_proposals` ran out first). ValueError naming the fields if none is found."""
     chain = _Chain(model)
+    _check_reach(chain, region)
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(stream,)))
     data = mujoco.MjData(model)
     ref = np.asarray(region.reference_quat, float)
@@ -296,15 +297,40 @@ def candidates(
         found.append(PoseTable(q[idx[inside]], p[inside], r[inside]))
         total += int(inside.sum())
     if total == 0:
-        raise ValueError(
-            f"the target region is empty: no collision-free pose inside the joint limits has "
-            f"its TCP in the box and its orientation within the spread ({region.describe()}; "
-            f"{tried} joint configurations tried). Widen target_min/target_max (the arm "
-            "reaches about 0.9 m from the shoulder (0.118, 0, 0.877), above the table top "
-            "z = 0.645 m) or target_spread_deg"
+        _empty(
+            region,
+            "no collision-free pose inside the joint limits has its TCP in the box and its "
+            f"orientation within the spread ({tried} joint configurations tried)",
         )
     table = PoseTable(*(np.concatenate(parts)[:count] for parts in zip(*found, strict=True)))
     return table
+
+
+def _empty(region: TargetRegion, why: str) -> None:
+    raise ValueError(
+        f"the target region is empty: {why} ({region.describe()}). Widen "
+        "target_min/target_max (the TCP reaches at most about 1.2 m from motor1's origin "
+        "(0, 0, 0.714), above the table top z = 0.645 m; the default box is "
+        "(-0.5, -0.25, 0.7) to (-0.2, 0.25, 0.9)) or target_spread_deg"
+    )
+
+
+def _check_reach(chain: _Chain, region: TargetRegion) -> None:
+    """ValueError at once for a box that no pose can reach: below the table top, or
+    farther from motor1's origin than the sum of the link offsets and the TCP offset."""
+    m = chain.model
+    if region.high[2] <= TABLE_TOP_Z:
+        _empty(region, f"the box lies below the table top (z = {TABLE_TOP_Z} m)")
+    origin = m.body_pos[chain.bodies[0]] + m.body_pos[chain.bodies[1]]  # base, motor1_link
+    reach = sum(np.linalg.norm(m.body_pos[b]) for b in chain.bodies[2:])
+    reach += np.linalg.norm(m.site_pos[chain.site])
+    nearest = np.clip(origin, region.low, region.high)
+    if np.linalg.norm(nearest - origin) > reach:
+        _empty(
+            region,
+            f"the box is {np.linalg.norm(nearest - origin):.2f} m from motor1's origin, "
+            f"beyond the arm's reach of {reach:.2f} m",
+        )
 
 
 def balance_weights(pos: np.ndarray, region: TargetRegion, grid: int = GRID) -> np.ndarray:
