@@ -218,15 +218,18 @@ def plot(path: Path, res: TargetEvalResult, orientation: bool, title: str) -> Pa
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = [("position: worst axis |e| (mm)", res.result.position_error_mm.max(1))]
+    rows = [("position: worst axis |e| (mm)", res.result.position_error_mm.max(1), THRESHOLDS_MM)]
     if orientation:
-        rows.append(("orientation: worst axis (deg)", res.result.orientation_error_deg.max(1)))
+        ori = res.result.orientation_error_deg.max(1)
+        rows.append(("orientation: worst axis (deg)", ori, THRESHOLDS_DEG))
     fig, axes = plt.subplots(len(rows), 4, figsize=(16, 3.6 * len(rows)), squeeze=False)
     floor = 1e-3
-    for (label, err), ax_row in zip(rows, axes, strict=True):
+    for (label, err, thresholds), ax_row in zip(rows, axes, strict=True):
         shown = np.maximum(err, floor)
         for k, ax in enumerate(ax_row[:3]):
             ax.scatter(res.target_pos[:, k], shown, s=6, alpha=0.6)
+            for t, style in zip(thresholds, ("--", ":"), strict=True):
+                ax.axhline(t, color="k", linestyle=style, linewidth=0.8, label=f"{t:g}")
             ax.set_yscale("log")
             ax.set_xlabel(f"target {POSITION_AXES[k]} (m)")
             ax.set_ylabel(label)
