@@ -2,7 +2,8 @@
 
 Public API:
     make(name, **overrides)   build one of `registered()` (MARA, MARAOrient,
-                              MARACollision, MARACollisionOrient)
+                              MARACollision, MARACollisionOrient, and their
+                              random-target variants MARARandomTarget, ...)
     register(name, factory)   add your own variant
     Env.reset(key, params=None) -> EnvState;  Env.step(state, action) -> EnvState
     BatchedEnv(env, n)        vmap + auto-reset + episode statistics
