@@ -70,16 +70,8 @@ from gymnasium.vector.utils import batch_space
 
 from mara_mjx.envs import BatchedEnv, make
 
-TASK_NAMES = (
-    "MARA",
-    "MARAOrient",
-    "MARACollision",
-    "MARACollisionOrient",
-    "MARARandomTarget",
-    "MARAOrientRandomTarget",
-    "MARACollisionRandomTarget",
-    "MARACollisionOrientRandomTarget",
-)
+TASK_NAMES = ("MARA", "MARAOrient", "MARACollision", "MARACollisionOrient")
+RANDOM_TARGET_TASK_NAMES = tuple(f"{task}RandomTarget" for task in TASK_NAMES)
 NAMESPACE = "mara_mjx"
 VERSION = 0
 
@@ -384,9 +376,9 @@ def _numpy_info(metrics: dict[str, Any]) -> dict[str, np.ndarray]:
 
 
 def register_gym_ids() -> None:
-    """Register the built-in tasks (TASK_NAMES) with gymnasium (idempotent; builds
-    nothing)."""
-    for task in TASK_NAMES:
+    """Register the built-in tasks (TASK_NAMES, RANDOM_TARGET_TASK_NAMES) with gymnasium
+    (idempotent; builds nothing)."""
+    for task in TASK_NAMES + RANDOM_TARGET_TASK_NAMES:
         env_id = gym_id(task)
         if env_id in gymnasium.registry:
             continue

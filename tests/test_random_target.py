@@ -9,6 +9,7 @@ import json
 import os
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import gymnasium
@@ -18,6 +19,7 @@ import mujoco
 import numpy as np
 import pytest
 from conftest import TASK_NAMES, jitted, max_traces
+from gymnasium.utils.env_checker import check_env
 
 import mara_mjx
 from mara_mjx import BatchedEnv
@@ -299,10 +301,16 @@ def test_with_targets_fixes_each_episode_target():
 
 def test_gym_env_target_moves_between_episodes():
     env = gymnasium.make(gym_id("MARARandomTarget"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # Box(-inf, inf) / unnormalised actions
+        check_env(env.unwrapped, skip_render_check=True)
     _, info0 = env.reset(seed=0)
     _, info1 = env.reset()
+    assert set(info0) == set(METRIC_KEYS + TARGET_METRIC_KEYS)
     assert info0["target_pos"].shape == (3,)
     assert not np.array_equal(info0["target_pos"], info1["target_pos"])
+    _, _, _, _, info = env.step(np.zeros(6, np.float32))
+    np.testing.assert_array_equal(info["target_pos"], info1["target_pos"])
     env.close()
 
 
