@@ -141,7 +141,9 @@ def with_targets(params: RandomTargetParams, pos, quat) -> RandomTargetParams:
     episode i at target i."""
     pos, quat = jnp.asarray(pos, jnp.float32), jnp.asarray(quat, jnp.float32)
     n = pos.shape[0]
-    batched = jax.tree.map(lambda x: jnp.broadcast_to(x, (n, *jnp.shape(x))), params)
+    # Drop the training table before broadcasting: E copies of it are not needed.
+    one = params.replace(table_pos=pos[:1], table_quat=quat[:1])
+    batched = jax.tree.map(lambda x: jnp.broadcast_to(x, (n, *jnp.shape(x))), one)
     return batched.replace(
         target_pos=pos, target_quat=quat, table_pos=pos[:, None], table_quat=quat[:, None]
     )
