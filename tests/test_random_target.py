@@ -395,10 +395,10 @@ def test_evaluate_on_the_real_driver(run_dir, tmp_path):
     from mara_mjx.ppo.flags import run_cli
 
     out = tmp_path / "real.json"
-    args = [str(run_dir), "--driver", "real", "--velocity", "0.3", "--episodes", "4"]
+    args = [str(run_dir), "--driver", "real", "--velocity", "0.3", "--episodes", "2"]
     args += ["--max_episode_steps", "2", "--json", str(out)]
     assert run_cli(evaluate_cli.main, "mara_mjx.evaluate", args) == 0
-    report = _check_report(out, 4, "real")
+    report = _check_report(out, 2, "real")
     assert report["env_config"]["velocity"] == 0.3
 
 
@@ -406,7 +406,8 @@ def test_play_shows_each_episode_target(run_dir):
     from mara_mjx import play
     from mara_mjx.ppo.config import EvalConfig
 
-    env = mara_mjx.make(ORIENT, max_episode_steps=1)
+    task = RANDOM_TASKS[ORIENT]  # the marker is under test, not the physics
+    env = _Counting(task, random_target_config(task).replace(max_episode_steps=1))
     policy = ckpt.load_policy(run_dir)
 
     class Viewer:
@@ -423,7 +424,5 @@ def test_play_shows_each_episode_target(run_dir):
     firsts = viewer.shown[::2]
     assert len({tuple(t.round(6)) for t in firsts}) == 3  # the marker moved
     np.testing.assert_array_equal(viewer.shown[0], viewer.shown[1])  # fixed in an episode
-    keys = jax.random.split(jax.random.key(config.seed), 3)
-    params = env.make_params(reset_noise=config.noise)
-    expected = np.asarray(env.reset(keys[1], params).params.target_pos)
-    np.testing.assert_allclose(firsts[1], expected, atol=1e-6)
+    table = np.asarray(env.default_params.table_pos)
+    assert all(np.any(np.all(table == t, axis=1)) for t in firsts)
