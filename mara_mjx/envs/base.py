@@ -128,11 +128,13 @@ class EnvConfig:
             raise ValueError(
                 f"target_spread_deg={self.target_spread_deg!r} must be in [0, 180] degrees"
             )
-        for name, high in (("target_table_size", MAX_TARGET_TABLE_SIZE), ("target_seed", 2**63)):
-            v = getattr(self, name)
-            low = 1 if name == "target_table_size" else 0
-            if not isinstance(v, int | np.integer) or isinstance(v, bool) or not low <= v <= high:
-                raise ValueError(f"{name}={v!r} must be an int in [{low}, {high}]")
+        size, seed = self.target_table_size, self.target_seed
+        if not (_is_int(size) and 1 <= size <= MAX_TARGET_TABLE_SIZE):
+            raise ValueError(
+                f"target_table_size={size!r} must be an int in [1, {MAX_TARGET_TABLE_SIZE}]"
+            )
+        if not (_is_int(seed) and 0 <= seed < 2**63):
+            raise ValueError(f"target_seed={seed!r} must be an int in [0, 2**63)")
         if not isinstance(self.reward, RewardParams):
             raise ValueError(
                 f"reward must be a mara_mjx.rewards.RewardParams, got {type(self.reward).__name__}"
@@ -179,6 +181,10 @@ def _finite(x: Any) -> bool:
         return math.isfinite(float(x))
     except (TypeError, ValueError):
         return False
+
+
+def _is_int(x: Any) -> bool:
+    return isinstance(x, int | np.integer) and not isinstance(x, bool)
 
 
 def _check_vector(name: str, value: Any, size: int) -> None:
