@@ -2,7 +2,8 @@
 
 Public API:
     make(name, **overrides)   build one of `registered()` (MARA, MARAOrient,
-                              MARACollision, MARACollisionOrient)
+                              MARACollision, MARACollisionOrient, and their
+                              random-target variants MARARandomTarget, ...)
     register(name, factory)   add your own variant
     Env                       the contract every consumer relies on (a Protocol):
                               reset(key, params=None) -> state, step(state, action)

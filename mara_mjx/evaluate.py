@@ -15,6 +15,10 @@ and writes JSON (config, versions, per-episode numbers, summary) to --json (defa
 
 Env flags (--driver, --velocity, --max_episode_steps, ...) override the checkpoint's env
 config, e.g. to run a policy trained with the train driver on the real-speed driver.
+
+Random-target tasks (MARARandomTarget, ...): 1,000 held-out target poses instead, each
+episode run to the horizon, with per-axis mean, median, 95th percentile and worst error,
+JSON, markdown and a figure (`mara_mjx.ppo.target_eval`).
 """
 
 from __future__ import annotations
@@ -34,8 +38,10 @@ from mara_mjx.cli import (
     run_cli,
 )
 from mara_mjx.envs.base import EnvConfig
+from mara_mjx.envs.random_target import is_random_target
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import policy as policy_io
+from mara_mjx.ppo import target_eval
 from mara_mjx.ppo.config import EvalConfig
 from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table
 from mara_mjx.rewards import RewardParams
@@ -76,6 +82,15 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         raise UserError(f"invalid eval config: {e}") from e
     env = runs.make_env(meta, **overrides(args, "env"))
+    if is_random_target(env):  # held-out target poses instead of the paper's table
+        return target_eval.run(
+            checkpoint=path,
+            meta=meta,
+            env=env,
+            policy=policy,
+            eval_overrides=overrides(args, "eval"),
+            json_path=args.json,
+        )
     name = meta["env_name"]
     out = (
         Path(args.json)

@@ -13,10 +13,12 @@ Host side, numpy in and out; the physics runs in JAX (jitted once per instance).
     obs, infos = envs.reset(seed=0)                 # (64, 12) float32, one batched device call
 
 Registered ids: `mara_mjx/MARA-v0`, `mara_mjx/MARAOrient-v0`, `mara_mjx/MARACollision-v0`,
-`mara_mjx/MARACollisionOrient-v0`, and one per name you `mara_mjx.register`. Keyword
-arguments are the env options of `mara_mjx.make` (fields of `mara_mjx.EnvConfig`:
+`mara_mjx/MARACollisionOrient-v0`, and the random-target tasks (a new target pose every
+episode) `mara_mjx/MARARandomTarget-v0`, `mara_mjx/MARAOrientRandomTarget-v0`,
+`mara_mjx/MARACollisionRandomTarget-v0`, `mara_mjx/MARACollisionOrientRandomTarget-v0`;
+Keyword arguments are the env options of `mara_mjx.make` (fields of `mara_mjx.EnvConfig`:
 driver, max_episode_steps, velocity, target_pos, target_quat, reset_noise, alpha, ...,
-done).
+done; target_min, target_max, target_spread_deg, ... for the random-target tasks), and one per name you `mara_mjx.register`.
 
 Horizon: the ids are registered without a gymnasium `TimeLimit`; truncation comes from
 the env's own `max_episode_steps` (1024 by default). `MaraGymEnv(task,
@@ -81,7 +83,8 @@ from gymnasium import spaces
 from mara_mjx.envs import make
 from mara_mjx.envs.registry import on_register
 
-TASK_NAMES = ("MARA", "MARAOrient", "MARACollision", "MARACollisionOrient")  # the paper's
+TASK_NAMES = ("MARA", "MARAOrient", "MARACollision", "MARACollisionOrient")
+RANDOM_TARGET_TASK_NAMES = tuple(f"{task}RandomTarget" for task in TASK_NAMES)
 NAMESPACE = "mara_mjx"
 VERSION = 0
 

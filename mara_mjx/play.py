@@ -304,7 +304,7 @@ def run_episodes(env, policy, config: EvalConfig, viewer, renderer, writer, hold
     reset = jax.jit(env.reset)
     step = jax.jit(lambda policy, state: env.step(state, policy(state.obs)))
     dt = env.config.control_dt
-    target = jax.device_get((params.target_pos, params.target_quat))
+    target = None  # the episode's: random-target tasks draw a new one at every reset
 
     def show(q: np.ndarray) -> np.ndarray | None:
         if viewer is not None:
@@ -322,6 +322,7 @@ def run_episodes(env, policy, config: EvalConfig, viewer, renderer, writer, hold
         if viewer is not None and not viewer.running:
             break
         state = reset(key, params)
+        target = jax.device_get((state.params.target_pos, state.params.target_quat))
         show(np.asarray(state.q))
         tick = time.perf_counter()
         while True:

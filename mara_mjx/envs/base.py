@@ -83,6 +83,16 @@ class Env(Protocol):
 DRIVERS = ("train", "real")
 DEFAULT_TARGET_POS = (-0.40028, 0.095615, 0.72466)
 DEFAULT_TARGET_QUAT = (0.0, 0.7071068, 0.7071068, 0.0)
+# Random-target tasks (envs/random_target.py): the default working volume, 30 x 50 x 20 cm
+# in front of the robot (the -x side, where the spec's target lies), 5.5 to 25.5 cm
+# above the table top. It holds DEFAULT_TARGET_POS, and every cell of a 5 x 5 x 5 grid
+# over it (6 x 10 x 4 cm) holds collision-free poses with the tool within 30 deg of
+# pointing down (tests/test_random_target.py); with the tool exactly down the arm
+# reaches 0.45 m from the base axis at z = 0.7 m but only 0.30 m at z = 0.9 m.
+DEFAULT_TARGET_MIN = (-0.50, -0.25, 0.70)
+DEFAULT_TARGET_MAX = (-0.20, 0.25, 0.90)
+DEFAULT_TARGET_SPREAD_DEG = 30.0
+MAX_TARGET_TABLE_SIZE = 65536
 
 # Every key of EnvState.metrics, present from reset on.
 METRIC_KEYS = (
@@ -129,6 +139,21 @@ class EnvConfig:
     its episodes differ, as the paper's Gazebo runs did."""
     check_target: bool = True
     """Verify at construction, by inverse kinematics, that the target is reachable."""
+    target_min: tuple[float, float, float] = DEFAULT_TARGET_MIN
+    """Random-target tasks: lower corner (m, world frame) of the box each episode's target
+    TCP position is drawn from."""
+    target_max: tuple[float, float, float] = DEFAULT_TARGET_MAX
+    """Random-target tasks: upper corner (m, world frame) of that box."""
+    target_spread_deg: float = DEFAULT_TARGET_SPREAD_DEG
+    """Random-target tasks: largest rotation (deg, in [0, 180]) of a drawn target
+    orientation away from target_quat (tool pointing down by default); 180 allows any
+    orientation, the default of the position-only tasks."""
+    target_table_size: int = 1024
+    """Random-target tasks: poses in the table the targets are drawn from (fixed when the
+    env is built: the params hold the table, so changing the region does not recompile)."""
+    target_seed: int = 0
+    """Random-target tasks: seed of the pose table (evaluation poses come from a
+    different, independent stream)."""
 
     def __post_init__(self):
         if self.driver not in DRIVERS:
@@ -152,6 +177,24 @@ class EnvConfig:
         check_vector("target_quat", self.target_quat, 4)
         if np.linalg.norm(self.target_quat) < 1e-6:
             raise ValueError("target_quat must be a non-zero quaternion (w, x, y, z)")
+        _check_vector("target_min", self.target_min, 3)
+        _check_vector("target_max", self.target_max, 3)
+        if not np.all(np.asarray(self.target_min) < np.asarray(self.target_max)):
+            raise ValueError(
+                f"target_min={list(self.target_min)} must be below target_max="
+                f"{list(self.target_max)} on every axis (x, y, z; m, world frame)"
+            )
+        if not (_finite(self.target_spread_deg) and 0 <= self.target_spread_deg <= 180):
+            raise ValueError(
+                f"target_spread_deg={self.target_spread_deg!r} must be in [0, 180] degrees"
+            )
+        size, seed = self.target_table_size, self.target_seed
+        if not (_is_int(size) and 1 <= size <= MAX_TARGET_TABLE_SIZE):
+            raise ValueError(
+                f"target_table_size={size!r} must be an int in [1, {MAX_TARGET_TABLE_SIZE}]"
+            )
+        if not (_is_int(seed) and 0 <= seed < 2**63):
+            raise ValueError(f"target_seed={seed!r} must be an int in [0, 2**63)")
         if not isinstance(self.reward, RewardParams):
             raise ValueError(
                 f"reward must be a mara_mjx.rewards.RewardParams, got {type(self.reward).__name__}"
@@ -180,7 +223,7 @@ class EnvConfig:
         if reward_overrides:
             base = overrides.get("reward", self.reward)
             overrides["reward"] = base.replace(**{k: float(v) for k, v in reward_overrides.items()})
-        for name in ("target_pos", "target_quat"):
+        for name in ("target_pos", "target_quat", "target_min", "target_max"):
             if name in overrides:
                 overrides[name] = tuple(float(x) for x in np.asarray(overrides[name]).ravel())
         return dataclasses.replace(self, **overrides)
@@ -191,6 +234,28 @@ class EnvConfig:
             f.name: float(getattr(self.reward, f.name)) for f in dataclasses.fields(RewardParams)
         }
         return out
+
+
+def _finite(x: Any) -> bool:
+    try:
+        return math.isfinite(float(x))
+    except (TypeError, ValueError):
+        return False
+
+
+def _is_int(x: Any) -> bool:
+    return isinstance(x, int | np.integer) and not isinstance(x, bool)
+
+
+def _check_vector(name: str, value: Any, size: int) -> None:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{name} must be {size} numbers, got {value!r}") from e
+    if arr.shape != (size,):
+        raise ValueError(f"{name} must have shape ({size},), got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}={arr.tolist()} must be finite")
 
 
 @struct.dataclass

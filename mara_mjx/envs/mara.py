@@ -84,6 +84,9 @@ def _shared_arm() -> Arm:
 class MaraEnv:
     """One MARA task. See the module docstring for observation, action and episode."""
 
+    metric_keys: tuple[str, ...] = METRIC_KEYS
+    """The keys of `EnvState.metrics` (every one present from reset on)."""
+
     def __init__(self, task: Task, config: EnvConfig | None = None):
         self.task = task
         self.config = config if config is not None else default_config(task)
@@ -193,7 +196,7 @@ class MaraEnv:
             step=jnp.zeros((), jnp.int32),
             key=key,
             params=params,
-            metrics={k: metrics[k] for k in METRIC_KEYS},
+            metrics={k: metrics[k] for k in self.metric_keys},
         )
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
@@ -262,7 +265,7 @@ class MaraEnv:
             terminated=blowup,
             truncated=step >= cfg.max_episode_steps,
             step=step,
-            metrics={k: metrics[k] for k in METRIC_KEYS},
+            metrics={k: metrics[k] for k in self.metric_keys},
         )
 
     # -------------------------------------------------------------- internals

@@ -10,6 +10,7 @@ from collections.abc import Callable
 from typing import Any
 
 from mara_mjx.envs.mara import TASKS, MaraEnv, Task, default_config
+from mara_mjx.envs.random_target import RANDOM_TASKS, RandomTargetEnv, random_target_config
 
 _REGISTRY: dict[str, Callable[..., Any]] = {}
 # Called with each newly registered name (the gymnasium adapter registers an id), so that
@@ -45,7 +46,8 @@ def registered() -> tuple[str, ...]:
 def make(name: str, **overrides: Any) -> Any:
     """Build a registered env. Overrides are fields of `mara_mjx.EnvConfig` (driver,
     max_episode_steps, control_dt, velocity, target_pos, target_quat, alpha, beta,
-    gamma, delta, eta, done, reward, check_target)."""
+    gamma, delta, eta, done, reward, check_target; for the random-target tasks also
+    target_min, target_max, target_spread_deg, target_table_size, target_seed)."""
     if name not in _REGISTRY:
         raise ValueError(f"unknown env {name!r}; registered envs are {list(_REGISTRY)}")
     return _REGISTRY[name](**overrides)
@@ -59,5 +61,15 @@ def _task_factory(task: Task) -> Callable[..., MaraEnv]:
     return factory
 
 
+def _random_task_factory(task: Task) -> Callable[..., RandomTargetEnv]:
+    def factory(**overrides: Any) -> RandomTargetEnv:
+        return RandomTargetEnv(task, random_target_config(task).replace(**overrides))
+
+    factory.__doc__ = f"The {task.name} task (a new target every episode). Overrides: EnvConfig."
+    return factory
+
+
 for _task in TASKS.values():
     register(_task.name, _task_factory(_task))
+for _task in RANDOM_TASKS.values():
+    register(_task.name, _random_task_factory(_task))

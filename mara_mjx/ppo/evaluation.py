@@ -115,12 +115,19 @@ def episode_record(state: Any, reached: jax.Array) -> dict[str, jax.Array]:
     }
 
 
-def make_evaluate(env: Any, config: EvalConfig) -> Callable[[Policy], dict[str, jax.Array]]:
+def make_evaluate(
+    env: Any, config: EvalConfig, params: Any = None
+) -> Callable[[Policy], dict[str, jax.Array]]:
     """A jitted fn(policy) -> per-episode arrays (see EvalResult) for this env and config.
-    The policy is an argument (a pytree), so one compile serves every checkpoint."""
-    params, keys = episode_plan(env, config)
+    The policy is an argument (a pytree), so one compile serves every checkpoint.
+    `params`: None (`episode_plan`'s: the reset noise for every episode) or params with a
+    leading (episodes,) axis, one per episode (e.g. each its own target)."""
+    per_episode = params is not None
+    plan_params, keys = episode_plan(env, config)
+    if params is None:
+        params = plan_params
     horizon = env.max_episode_steps
-    reset = jax.vmap(env.reset, in_axes=(0, None))
+    reset = jax.vmap(env.reset, in_axes=(0, 0 if per_episode else None))
     step = jax.vmap(env.step)
 
     def evaluate(policy: Policy) -> dict[str, jax.Array]:
@@ -150,9 +157,10 @@ def make_evaluate(env: Any, config: EvalConfig) -> Callable[[Policy], dict[str, 
     return jax.jit(evaluate)
 
 
-def evaluate(env: Any, policy: Policy, config: EvalConfig) -> EvalResult:
-    """Run the evaluation (compiles once per env and config)."""
-    out = jax.device_get(make_evaluate(env, config)(policy))
+def evaluate(env: Any, policy: Policy, config: EvalConfig, params: Any = None) -> EvalResult:
+    """Run the evaluation (compiles once per env and config); `params` as in
+    `make_evaluate`."""
+    out = jax.device_get(make_evaluate(env, config, params)(policy))
     return EvalResult(**{k: np.asarray(v) for k, v in out.items()})
 
 
