@@ -53,6 +53,7 @@ import jax
 from tqdm import tqdm
 
 import mara_mjx
+from mara_mjx import distributed
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import logger
@@ -64,7 +65,6 @@ from mara_mjx.ppo.flags import (
     add_flags,
     configure_jax,
     overrides,
-    run_cli,
 )
 from mara_mjx.ppo.policy import make_policy
 from mara_mjx.ppo.train import Trainer, make_train, num_parameters
@@ -120,6 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
         "checkpoint's run folder unless --out is given)",
     )
     add_flags(parser, SECTIONS)
+    distributed.add_arguments(parser)
     return parser
 
 
@@ -195,6 +196,7 @@ def prepare_out(plan: Plan) -> None:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_jax()
+    distributed.initialize(distributed.launch_from(args))  # several processes: see there
     plan = resolve(args)
     try:
         env = mara_mjx.make(plan.env_name, **plan.env_overrides)
@@ -204,7 +206,9 @@ def main(argv: list[str] | None = None) -> int:
         trainer = make_train(env, plan.ppo, plan.run.updates_per_call, plan.run.devices)
     except ValueError as e:
         raise UserError(str(e)) from e
-    prepare_out(plan)
+    main_process = distributed.is_main()  # the one that writes the run folder
+    if main_process:
+        prepare_out(plan)
 
     progress: dict[str, Any] = {"update": 0, "env_steps": 0, "time_s": 0.0, "milestones": {}}
     state = None
@@ -225,26 +229,35 @@ def main(argv: list[str] | None = None) -> int:
         **ckpt.provenance(),
     }
     resolved = {**meta, "resume_from": str(plan.checkpoint) if plan.checkpoint else None}
-    print(json.dumps(resolved, indent=2), flush=True)
-    ckpt.write_json(plan.out / "config.json", resolved)
+    distributed.check_same_config(resolved, plan.checkpoint)
+    if main_process:
+        print(json.dumps(resolved, indent=2), flush=True)
+        ckpt.write_json(plan.out / "config.json", resolved)
+    else:
+        print(f"{distributed.describe()}: joined; process 0 writes the run folder", flush=True)
 
     orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
-    log = logger.RunLogger(
-        plan.out,
-        logger.columns(orientation),
-        plan.run.tensorboard,
-        resume_update=progress["update"] if plan.checkpoint else None,
-        resume_env_steps=progress["env_steps"],
+    log = (
+        logger.RunLogger(
+            plan.out,
+            logger.columns(orientation),
+            plan.run.tensorboard,
+            resume_update=progress["update"] if plan.checkpoint else None,
+            resume_env_steps=progress["env_steps"],
+        )
+        if main_process
+        else distributed.NoLog(logger.columns(orientation))
     )
     milestones = logger.Milestones(progress.get("milestones"))
     if state is None:
         state = trainer.init(jax.random.key(plan.ppo.seed))
-    print(
-        f"{plan.env_name}: {trainer.num_updates} updates of {plan.ppo.num_envs} envs x "
-        f"{plan.ppo.num_steps} steps, {num_parameters(state.params)} parameters, "
-        f"{jax.default_backend()} backend; the first call compiles",
-        flush=True,
-    )
+    if main_process:
+        print(
+            f"{plan.env_name}: {trainer.num_updates} updates of {plan.ppo.num_envs} envs x "
+            f"{plan.ppo.num_steps} steps, {num_parameters(state.params)} parameters, "
+            f"{jax.default_backend()} backend; the first call compiles",
+            flush=True,
+        )
     try:
         state, last = train_loop(trainer, state, plan, meta, progress, log, milestones)
     except KeyboardInterrupt:
@@ -252,7 +265,12 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     finally:
         log.close()
-    finish(env, state, plan, meta, last, milestones)
+    state = distributed.gather(state)  # several processes: each gets the whole state
+    try:
+        if main_process:
+            finish(env, state, plan, meta, last, milestones)
+    finally:
+        distributed.barrier("mara_mjx.train: finished")
     return 0
 
 
@@ -281,7 +299,7 @@ def train_loop(
         unit="step",
         unit_scale=True,
         dynamic_ncols=True,
-        disable=not plan.run.progress,
+        disable=not (plan.run.progress and distributed.is_main()),
         file=sys.stderr,
     )
     while done < trainer.num_updates:
@@ -296,7 +314,8 @@ def train_loop(
         done += n
         log.log(rows)
         for message in milestones.update(rows):
-            bar.write(message)
+            if distributed.is_main():
+                bar.write(message)
         last = {k: rows[-1][k] for k in log.columns if k in rows[-1]}
         bar.update(n * per_update)
         bar.set_postfix(
@@ -313,8 +332,10 @@ def train_loop(
                 "milestones": milestones.records,
             }
             path = plan.out / ckpt.CHECKPOINT_DIR / ckpt.checkpoint_name(done)
-            ckpt.save_checkpoint(path, state, {**meta, "progress": progress})
-            ckpt.prune_checkpoints(plan.out, plan.run.keep_checkpoints)
+            local = distributed.gather(state)  # a collective: every process, then one writes
+            if distributed.is_main():
+                ckpt.save_checkpoint(path, local, {**meta, "progress": progress})
+                ckpt.prune_checkpoints(plan.out, plan.run.keep_checkpoints)
     bar.close()
     return state, last
 
@@ -365,4 +386,4 @@ def finish(
 
 
 if __name__ == "__main__":
-    sys.exit(run_cli(main, PROG))
+    sys.exit(distributed.run_cli(main, PROG))
