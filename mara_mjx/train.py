@@ -53,7 +53,7 @@ import jax
 from tqdm import tqdm
 
 import mara_mjx
-from mara_mjx import distributed
+from mara_mjx import distributed, sharding
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import logger
@@ -216,6 +216,10 @@ def main(argv: list[str] | None = None) -> int:
         arrays, meta = ckpt.load_checkpoint(plan.checkpoint)
         template = jax.eval_shape(trainer.init, jax.random.key(0))  # traced, not compiled
         state = ckpt.arrays_to_state(arrays, template)
+        # where init puts it (envs sharded, the rest replicated): no second compile of run
+        env_state = sharding.put(state.env_state, trainer.env.mesh, axis=0)
+        state = sharding.put(state.replace(env_state=None), trainer.env.mesh)
+        state = state.replace(env_state=env_state)
         progress = meta["progress"]
 
     meta = {
