@@ -287,6 +287,41 @@ def test_killing_a_process_stops_the_other(env_vars, tmp_path):
     assert not (tmp_path / "run" / ckpt.CHECKPOINT_DIR / ckpt.checkpoint_name(1)).exists()
 
 
+# Two processes build the MARA env: every array it holds must be on this process's device
+# (MJX's default device, jax.devices()[0], is process 0's; process 1 then failed to
+# compile anything that closed over the model).
+LOCAL_ARRAYS = r"""
+import sys
+import jax
+jax.distributed.initialize(f"localhost:{sys.argv[1]}", 2, int(sys.argv[2]),
+                           initialization_timeout=60, heartbeat_timeout_seconds=5)
+import mara_mjx
+env = mara_mjx.make("MARA")
+arrays = [x for x in jax.tree.leaves((env.arm.mjx_model, env.arm._data0, env.make_params()))
+          if isinstance(x, jax.Array)]
+remote = [x.shape for x in arrays if not x.is_fully_addressable]
+assert arrays and not remote, remote
+print("local", len(arrays))
+"""
+
+
+def test_env_arrays_live_on_the_local_device(env_vars):
+    port = str(free_port())
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", LOCAL_ARRAYS, port, str(i)],
+            cwd=REPO,
+            env=env_vars,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for i in range(2)
+    ]
+    for code, out, err in finish(procs, timeout=120):
+        assert code == 0 and "local" in out, err[-3000:]
+
+
 def launch(argv: list[str], environ: dict[str, str] | None = None):
     parser = argparse.ArgumentParser()
     distributed.add_arguments(parser)
