@@ -98,28 +98,46 @@ def main():
                 break
         else:
             branches.append({**m, "count": 1})
-    print(f"{args.starts} random starts: {len(exact)} end on the exact pose; "
-          f"{len(branches)} distinct branches:")
+    print(
+        f"{args.starts} random starts: {len(exact)} end on the exact pose; "
+        f"{len(branches)} distinct branches:"
+    )
     for b in sorted(branches, key=lambda b: -b["count"]):
-        print(f"  n={b['count']:3d} q={b['q']} collided={b['collided']} limits={b['joints_at_limit']}")
+        print(
+            f"  n={b['count']:3d} q={b['q']} collided={b['collided']} limits={b['joints_at_limit']}"
+        )
     stuck = [m for m in ends if m not in exact]
     angles = np.array([m["angle_deg"] for m in stuck])
     pos_ok = np.array([m["position_error_mm"] < 0.5 for m in stuck])
-    print(f"{len(stuck)} starts end elsewhere; of them {pos_ok.sum()} with position < 0.5 mm, "
-          f"their orientation error: median {np.median(angles[pos_ok]) if pos_ok.any() else 0:.1f} deg")
+    print(
+        f"{len(stuck)} starts end elsewhere; of them {pos_ok.sum()} with position < 0.5 mm, "
+        f"their orientation error: median {np.median(angles[pos_ok]) if pos_ok.any() else 0:.1f} deg"
+    )
     settled = {}
     for name, q in SETTLED.items():
         here = measure(model, data, np.array(q))
         q_end, there = descend(model, data, np.array(q))
         settled[name] = {"at": here, "local_descent_ends": there}
-        print(f"{name}: at q: pos {here['position_error_mm']:.1f} mm, angle {here['angle_deg']:.1f} deg "
-              f"{here['rotvec_deg']}, collided {here['collided']}, limits {here['joints_at_limit']}")
-        print(f"    local descent -> pos {there['position_error_mm']:.2f} mm, angle {there['angle_deg']:.2f} deg, "
-              f"q {there['q']}, collided {there['collided']}, limits {there['joints_at_limit']}")
+        print(
+            f"{name}: at q: pos {here['position_error_mm']:.1f} mm, angle {here['angle_deg']:.1f} deg "
+            f"{here['rotvec_deg']}, collided {here['collided']}, limits {here['joints_at_limit']}"
+        )
+        print(
+            f"    local descent -> pos {there['position_error_mm']:.2f} mm, angle {there['angle_deg']:.2f} deg, "
+            f"q {there['q']}, collided {there['collided']}, limits {there['joints_at_limit']}"
+        )
     if args.out:
         with open(args.out, "w") as f:
-            json.dump({"starts": args.starts, "branches": branches, "settled": settled,
-                       "stuck_angles_deg": angles.tolist()}, f, indent=1)
+            json.dump(
+                {
+                    "starts": args.starts,
+                    "branches": branches,
+                    "settled": settled,
+                    "stuck_angles_deg": angles.tolist(),
+                },
+                f,
+                indent=1,
+            )
 
 
 if __name__ == "__main__":

@@ -45,12 +45,24 @@ VARIANTS = {
         "bound_coef": 0.0,
         "train_collision_penalty": 0.0,
     },
-    "quat": {"canonical_quat": True, "bound_coef": 0.0, "train_collision_penalty": 0.0,
-             "init_log_std": 0.0},
-    "bound": {"bound_coef": 1.0, "canonical_quat": False, "train_collision_penalty": 0.0,
-              "init_log_std": 0.0},
-    "quat_bound": {"canonical_quat": True, "bound_coef": 1.0, "train_collision_penalty": 0.0,
-                   "init_log_std": 0.0},
+    "quat": {
+        "canonical_quat": True,
+        "bound_coef": 0.0,
+        "train_collision_penalty": 0.0,
+        "init_log_std": 0.0,
+    },
+    "bound": {
+        "bound_coef": 1.0,
+        "canonical_quat": False,
+        "train_collision_penalty": 0.0,
+        "init_log_std": 0.0,
+    },
+    "quat_bound": {
+        "canonical_quat": True,
+        "bound_coef": 1.0,
+        "train_collision_penalty": 0.0,
+        "init_log_std": 0.0,
+    },
     # orientation weighted more during the first half of training, then the env's reward
     "curr_half": {
         "canonical_quat": True,

@@ -121,6 +121,19 @@ def pmean(tree: Any, mesh: Mesh | None) -> Any:
     return tree if mesh is None else jax.lax.pmean(tree, AXIS)
 
 
+def put(tree: Any, mesh: Mesh | None, axis: int | None = None) -> Any:
+    """Every array leaf of `tree` placed on the mesh (outside jit): dimension `axis`
+    sharded over "envs", or replicated (None); `tree` itself when mesh is None. With
+    several processes, every process must pass the same values (e.g. read from the same
+    checkpoint): each keeps its devices' part."""
+    if mesh is None:
+        return tree
+    target = NamedSharding(mesh, PartitionSpec() if axis is None else spec(axis))
+    # jit rather than device_put: its outputs carry the mesh in their type as those of
+    # the training program do (device_put's replicated ones do not: a new compile)
+    return jax.jit(lambda t: t, out_shardings=target)(tree)
+
+
 def replicate(tree: Any, mesh: Mesh | None) -> Any:
     """Every array leaf of `tree` replicated on the mesh (inside jit)."""
     if mesh is None:

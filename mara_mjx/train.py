@@ -60,14 +60,13 @@ import jax
 from tqdm import tqdm
 
 import mara_mjx
-from mara_mjx import runs
+from mara_mjx import distributed, runs, sharding
 from mara_mjx.cli import (
     Section,
     UserError,
     add_flags,
     configure_jax,
     overrides,
-    run_cli,
 )
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.ppo import checkpoint as ckpt
@@ -129,6 +128,7 @@ def build_parser() -> argparse.ArgumentParser:
         "checkpoint's run folder unless --out is given)",
     )
     add_flags(parser, SECTIONS)
+    distributed.add_arguments(parser)
     return parser
 
 
@@ -208,6 +208,7 @@ def prepare_out(plan: Plan) -> None:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_jax()
+    distributed.initialize(distributed.launch_from(args))  # several processes: see there
     plan = resolve(args)
     try:
         env = mara_mjx.make(plan.env_name, **plan.env_overrides)
@@ -220,7 +221,9 @@ def main(argv: list[str] | None = None) -> int:
     # the config with its env-dependent fields resolved (PPOConfig.quat_index): saved with
     # every checkpoint, so policies load with the same observation reading
     plan = dataclasses.replace(plan, ppo=trainer.config)
-    prepare_out(plan)
+    main_process = distributed.is_main()  # the one that writes the run folder
+    if main_process:
+        prepare_out(plan)
 
     progress: dict[str, Any] = {"update": 0, "env_steps": 0, "time_s": 0.0, "milestones": {}}
     state = None
@@ -228,6 +231,10 @@ def main(argv: list[str] | None = None) -> int:
         arrays, meta = ckpt.load_checkpoint(plan.checkpoint)
         template = jax.eval_shape(trainer.init, jax.random.key(0))  # traced, not compiled
         state = ckpt.arrays_to_state(arrays, template)
+        # where init puts it (envs sharded, the rest replicated): no second compile of run
+        env_state = sharding.put(state.env_state, trainer.env.mesh, axis=0)
+        state = sharding.put(state.replace(env_state=None), trainer.env.mesh)
+        state = state.replace(env_state=env_state)
         progress = meta["progress"]
 
     meta = {
@@ -241,35 +248,49 @@ def main(argv: list[str] | None = None) -> int:
         **runs.provenance(),
     }
     resolved = {**meta, "resume_from": str(plan.checkpoint) if plan.checkpoint else None}
-    print(json.dumps(resolved, indent=2), flush=True)
-    runs.write_json(plan.out / "config.json", resolved)
+    distributed.check_same_config(resolved, plan.checkpoint)
+    if main_process:
+        print(json.dumps(resolved, indent=2), flush=True)
+        runs.write_json(plan.out / "config.json", resolved)
+    else:
+        print(f"{distributed.describe()}: joined; process 0 writes the run folder", flush=True)
 
     orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
-    log = logger.RunLogger(
-        plan.out,
-        logger.columns(orientation),
-        plan.run.tensorboard,
-        resume_update=progress["update"] if plan.checkpoint else None,
-        resume_env_steps=progress["env_steps"],
+    log = (
+        logger.RunLogger(
+            plan.out,
+            logger.columns(orientation),
+            plan.run.tensorboard,
+            resume_update=progress["update"] if plan.checkpoint else None,
+            resume_env_steps=progress["env_steps"],
+        )
+        if main_process
+        else distributed.NoLog(logger.columns(orientation))
     )
     milestones = logger.Milestones(progress.get("milestones"))
     try:
         with STOP:  # Ctrl-C: finish the call in flight, write a checkpoint, exit 130
             if state is None:
                 state = trainer.init(jax.random.key(plan.ppo.seed))
-            print(
-                f"{plan.env_name}: {trainer.num_updates} updates of {plan.ppo.num_envs} envs x "
-                f"{plan.ppo.num_steps} steps, {num_parameters(state.params)} parameters, "
-                f"{jax.default_backend()} backend; the first call compiles",
-                flush=True,
-            )
+            if main_process:
+                print(
+                    f"{plan.env_name}: {trainer.num_updates} updates of {plan.ppo.num_envs} "
+                    f"envs x {plan.ppo.num_steps} steps, {num_parameters(state.params)} "
+                    f"parameters, {jax.default_backend()} backend; the first call compiles",
+                    flush=True,
+                )
             state, last = train_loop(trainer, state, plan, meta, progress, log, milestones)
     except KeyboardInterrupt:
         print(f"\n{interrupted_message(plan.out)}", file=sys.stderr)
         return 130
     finally:
         log.close()
-    finish(env, state, plan, meta, last, milestones)
+    state = distributed.gather(state)  # several processes: each gets the whole state
+    try:
+        if main_process:
+            finish(env, state, plan, meta, last, milestones)
+    finally:
+        distributed.barrier("mara_mjx.train: finished")
     return 0
 
 
@@ -315,7 +336,7 @@ def train_loop(
         unit="step",
         unit_scale=True,
         dynamic_ncols=True,
-        disable=not plan.run.progress,
+        disable=not (plan.run.progress and distributed.is_main()),
         file=sys.stderr,
     )
     while done < trainer.num_updates and not STOP.requested:
@@ -330,7 +351,8 @@ def train_loop(
         done += n
         log.log(rows)
         for message in milestones.update(rows):
-            bar.write(message)
+            if distributed.is_main():
+                bar.write(message)
         last = {k: rows[-1][k] for k in log.columns if k in rows[-1]}
         bar.update(n * per_update)
         bar.set_postfix(
@@ -347,8 +369,10 @@ def train_loop(
                 "milestones": milestones.records,
             }
             path = plan.out / ckpt.CHECKPOINT_DIR / ckpt.checkpoint_name(done)
-            ckpt.save_checkpoint(path, state, {**meta, "progress": progress})
-            runs.prune_checkpoints(plan.out, plan.run.keep_checkpoints)
+            local = distributed.gather(state)  # a collective: every process, then one writes
+            if distributed.is_main():
+                ckpt.save_checkpoint(path, local, {**meta, "progress": progress})
+                runs.prune_checkpoints(plan.out, plan.run.keep_checkpoints)
     bar.close()
     if STOP.requested and done < trainer.num_updates:
         path = plan.out / ckpt.CHECKPOINT_DIR / ckpt.checkpoint_name(done)
@@ -406,4 +430,4 @@ def finish(
 
 
 if __name__ == "__main__":
-    sys.exit(run_cli(main, PROG))
+    sys.exit(distributed.run_cli(main, PROG))

@@ -392,7 +392,7 @@ def test_evaluate_cli_on_a_random_target_run(run_dir, tmp_path):
 
 def test_evaluate_on_the_real_driver(run_dir, tmp_path):
     from mara_mjx import evaluate as evaluate_cli
-    from mara_mjx.ppo.flags import run_cli
+    from mara_mjx.cli import run_cli
 
     out = tmp_path / "real.json"
     args = [str(run_dir), "--driver", "real", "--velocity", "0.3", "--episodes", "2"]

@@ -120,8 +120,12 @@ class Arm:
         self.lower = m.jnt_range[self.joint_ids, 0].copy()
         self.upper = m.jnt_range[self.joint_ids, 1].copy()
         self.timestep = float(m.opt.timestep)
-        self.mjx_model = mjx.put_model(m, impl="jax")
-        self._data0 = mjx.make_data(m, impl="jax")
+        # This process's first device: MJX's default, jax.devices()[0], belongs to process 0
+        # when several processes share a run (mara_mjx.distributed), and a jitted
+        # function cannot close over another process's arrays.
+        device = jax.local_devices()[0]
+        self.mjx_model = mjx.put_model(m, impl="jax", device=device)
+        self._data0 = mjx.make_data(m, impl="jax", device=device)
         self.num_contacts = int(self._data0._impl.contact.dist.shape[0])
 
     # ------------------------------------------------------------------ poses

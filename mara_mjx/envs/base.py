@@ -21,6 +21,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any, Literal, Protocol, runtime_checkable
 
 import jax

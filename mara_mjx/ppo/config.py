@@ -230,9 +230,7 @@ def reward_curriculum(text: str) -> dict[str, float]:
         name, sep, value = part.partition("=")
         name = name.strip()
         if not sep or name not in valid:
-            raise ValueError(
-                f"train_reward: {part!r} is not NAME=VALUE with NAME one of {valid}"
-            )
+            raise ValueError(f"train_reward: {part!r} is not NAME=VALUE with NAME one of {valid}")
         try:
             number = float(value)
         except ValueError:

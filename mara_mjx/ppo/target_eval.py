@@ -265,7 +265,7 @@ def run(
 ) -> int:
     """The random-target branch of `python -m mara_mjx.evaluate` (flags already parsed)."""
     from mara_mjx import runs as ckpt
-    from mara_mjx.ppo.flags import UserError
+    from mara_mjx.cli import UserError
 
     try:
         config = eval_config(eval_overrides)

@@ -41,7 +41,6 @@ from mara_mjx import sharding
 from mara_mjx.envs.batched import BatchedEnv, BatchedState
 from mara_mjx.ppo.config import PPOConfig, for_env, reward_curriculum
 from mara_mjx.ppo.losses import gae, ppo_loss
-from mara_mjx.rewards import collision_penalty
 from mara_mjx.ppo.networks import (
     ActorCritic,
     RunningStats,
@@ -52,6 +51,7 @@ from mara_mjx.ppo.networks import (
     make_network,
     update_stats,
 )
+from mara_mjx.rewards import collision_penalty
 
 
 @struct.dataclass

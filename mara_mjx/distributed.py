@@ -1,0 +1,455 @@
+"""Several processes, one training run: `python -m mara_mjx.train` on jax.distributed.
+
+Every process runs the same command; JAX's distributed runtime joins them into one
+program whose devices are every process's devices (`jax.devices()`), so the mesh of
+mara_mjx.sharding spans them all and each process steps its own devices' share of the
+environments. How a process joins (flags; each also read from an environment variable):
+
+    --coordinator HOST:PORT   MARA_COORDINATOR     process 0's address (it serves there)
+    --num_processes N         MARA_NUM_PROCESSES   how many processes take part
+    --process_id I            MARA_PROCESS_ID      this process, 0..N-1
+    --distributed MODE        MARA_DISTRIBUTED     auto (default) or off
+    --heartbeat_timeout S     MARA_HEARTBEAT_TIMEOUT  a silent process counts as dead after
+                                                   S seconds (JAX's default: 100)
+    --join_timeout S          MARA_JOIN_TIMEOUT    wait this long for every process to join
+                                                   (JAX's default: 300)
+
+With `auto`, a process joins when any of the first three is given, or when SLURM runs it as
+one of several tasks (SLURM_NTASKS > 1): then `jax.distributed.initialize()` reads the
+coordinator, the process count and the process id from SLURM, as JAX does. Otherwise the
+command is an ordinary single process and none of this module does anything.
+
+What the train CLI does differently when several processes take part:
+
+* Only process 0 writes: the run folder (config.json, progress.csv, tb/, checkpoints,
+  eval.json, summary.json, plots). Checkpoints gather the sharded state to every process
+  (`gather`, a collective) and process 0 saves it; the final evaluation runs on process 0.
+* Before anything is compiled, every process compares a digest of each section of its
+  resolved config (env, ppo, run except the output folder, eval, versions, git commit, and
+  the content of the checkpoint it resumes from) with process 0's (`check_same`), and all
+  stop with an error naming the sections that differ. A process that fails before this
+  point (a bad flag value, a missing checkpoint) sends its error instead, so every process
+  stops with it rather than waiting for the missing one.
+* Resuming: every process reads the same checkpoint (the run folder must be visible to all
+  of them, e.g. on a shared file system); the comparison above checks that they did.
+* A process that fails after that point leaves at once (`os._exit`), without JAX's
+  shutdown barrier, which would wait for the others, blocked in a collective, until its
+  own timeout. The others then fail within the heartbeat timeout, or at once where the
+  collective notices the closed connection (the gloo CPU collectives do); on GPUs, JAX
+  ends them with "Terminating process because the JAX distributed service detected fatal
+  errors".
+
+On CPU (the test suite) the collectives between processes are gloo's
+(`jax_cpu_collectives_implementation`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import inspect
+import json
+import os
+import sys
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mara_mjx.cli import UserError
+from mara_mjx.cli import run_cli as run_user_cli
+
+MODES = ("auto", "off")
+ENV_VARS = {
+    "coordinator": "MARA_COORDINATOR",
+    "num_processes": "MARA_NUM_PROCESSES",
+    "process_id": "MARA_PROCESS_ID",
+    "distributed": "MARA_DISTRIBUTED",
+    "heartbeat_timeout": "MARA_HEARTBEAT_TIMEOUT",
+    "join_timeout": "MARA_JOIN_TIMEOUT",
+}
+_SLOTS, _DIGEST, _MESSAGE = 16, 8, 1024  # config sections, bytes per digest, error bytes
+
+
+class DistributedError(UserError):
+    """A multi-process launch that cannot work (bad settings, a process that failed or
+    disagrees): a user error (one line, exit status 2)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Launch:
+    """How this process joins a multi-process run (None fields: JAX finds them, e.g. from
+    SLURM)."""
+
+    coordinator: str | None = None
+    num_processes: int | None = None
+    process_id: int | None = None
+    heartbeat_timeout: int | None = None
+    join_timeout: int | None = None
+    source: str = "flags"
+    """Where the settings came from: 'flags' (flags or MARA_* variables) or 'slurm'."""
+
+
+class _State:
+    active = False  # jax.distributed initialised by this module
+    exchanged = False  # the processes have compared configs (or errors)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The flags of the module docstring, in their own group."""
+    group = parser.add_argument_group(
+        "several processes (jax.distributed; each flag also reads the MARA_* variable named)"
+    )
+    group.add_argument(
+        "--coordinator",
+        metavar="HOST:PORT",
+        help="address of process 0, which serves the coordination there; every process "
+        "gives the same (MARA_COORDINATOR)",
+    )
+    group.add_argument(
+        "--num_processes",
+        type=int,
+        metavar="N",
+        help="number of processes in the run (MARA_NUM_PROCESSES)",
+    )
+    group.add_argument(
+        "--process_id",
+        type=int,
+        metavar="I",
+        help="this process, 0..N-1; process 0 writes the run folder (MARA_PROCESS_ID)",
+    )
+    group.add_argument(
+        "--distributed",
+        choices=MODES,
+        help="auto: join a multi-process run when the flags above are given or SLURM runs "
+        "this as one of several tasks; off: always one process (MARA_DISTRIBUTED; "
+        "default: auto)",
+    )
+    group.add_argument(
+        "--heartbeat_timeout",
+        type=int,
+        metavar="SECONDS",
+        help="a process that stops answering for this long counts as dead and the others "
+        "stop (MARA_HEARTBEAT_TIMEOUT; default: JAX's, 100)",
+    )
+    group.add_argument(
+        "--join_timeout",
+        type=int,
+        metavar="SECONDS",
+        help="how long to wait for every process to join (MARA_JOIN_TIMEOUT; default: JAX's, 300)",
+    )
+
+
+def launch_from(args: argparse.Namespace, environ: dict[str, str] | None = None) -> Launch | None:
+    """The launch that flags (first) and MARA_* variables ask for; None for one process.
+    DistributedError names the bad setting and the valid choices."""
+    environ = os.environ if environ is None else environ
+
+    def get(name: str, kind: type) -> Any:
+        value = getattr(args, name, None)
+        if value is not None:
+            return value
+        text = environ.get(ENV_VARS[name], "").strip()
+        if not text:
+            return None
+        if kind is int:
+            try:
+                return int(text)
+            except ValueError:
+                raise DistributedError(f"{ENV_VARS[name]}={text!r} is not an integer") from None
+        return text
+
+    mode = get("distributed", str) or "auto"
+    if mode not in MODES:
+        raise DistributedError(f"distributed mode {mode!r} is invalid; choose one of {MODES}")
+    coordinator = get("coordinator", str)
+    num_processes = get("num_processes", int)
+    process_id = get("process_id", int)
+    heartbeat, join = get("heartbeat_timeout", int), get("join_timeout", int)
+    for name, value in (("heartbeat_timeout", heartbeat), ("join_timeout", join)):
+        if value is not None and value < 1:
+            raise DistributedError(f"{name} must be >= 1 second, got {value}")
+    if mode == "off":
+        return None
+    if coordinator is not None:
+        host, _, port = coordinator.rpartition(":")
+        if not host or not port.isdigit() or not 0 < int(port) < 65536:
+            raise DistributedError(
+                f"coordinator {coordinator!r} is not HOST:PORT (e.g. localhost:12355 or "
+                "node001:12355, the address of process 0)"
+            )
+    if num_processes is not None and num_processes < 1:
+        raise DistributedError(f"num_processes must be >= 1, got {num_processes}")
+    if process_id is not None:
+        upper = f"0..{num_processes - 1}" if num_processes else ">= 0"
+        if process_id < 0 or (num_processes is not None and process_id >= num_processes):
+            raise DistributedError(f"process_id={process_id} is out of range; choose {upper}")
+    given = (coordinator, num_processes, process_id)
+    if any(v is not None for v in given):
+        if num_processes == 1 and coordinator is None:
+            return None  # explicitly one process
+        return Launch(coordinator, num_processes, process_id, heartbeat, join, "flags")
+    if _slurm_tasks(environ) > 1:
+        return Launch(None, None, None, heartbeat, join, "slurm")
+    return None
+
+
+def _slurm_tasks(environ: dict[str, str]) -> int:
+    """The number of tasks of this SLURM job step (1 outside SLURM)."""
+    if "SLURM_JOB_ID" not in environ:
+        return 1
+    for name in ("SLURM_STEP_NUM_TASKS", "SLURM_NTASKS"):
+        text = environ.get(name, "")
+        if text.isdigit():
+            return int(text)
+    return 1
+
+
+def initialize(launch: Launch | None) -> None:
+    """jax.distributed.initialize as `launch` says (nothing for None); before any other
+    JAX call that starts a backend."""
+    if launch is None:
+        return
+    import jax
+
+    try:  # CPU processes talk through gloo (the default in recent JAX; 'none' would fail)
+        if jax.config.jax_cpu_collectives_implementation in (None, "none"):
+            jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    except AttributeError:
+        pass
+    accepted = inspect.signature(jax.distributed.initialize).parameters
+    kwargs: dict[str, Any] = {
+        "coordinator_address": launch.coordinator,
+        "num_processes": launch.num_processes,
+        "process_id": launch.process_id,
+    }
+    for name, value in (
+        ("heartbeat_timeout_seconds", launch.heartbeat_timeout),
+        ("initialization_timeout", launch.join_timeout),
+    ):
+        if value is not None:
+            if name not in accepted:
+                raise DistributedError(f"this JAX ({jax.__version__}) has no {name} option")
+            kwargs[name] = value
+    where = launch.coordinator or "the coordinator SLURM names"
+    try:
+        jax.distributed.initialize(**kwargs)
+    except Exception as e:  # JAX raises ValueError, RuntimeError or XlaRuntimeError
+        raise DistributedError(
+            f"could not join the run at {where} as process {launch.process_id} of "
+            f"{launch.num_processes}: {first_line(e)} (did every process start, with the same "
+            "--coordinator and --num_processes? --join_timeout sets how long to wait)"
+        ) from e
+    _State.active = True
+    _State.exchanged = False
+
+
+def active() -> bool:
+    """True in a process of a multi-process run joined through this module."""
+    return _State.active
+
+
+def process_index() -> int:
+    if not _State.active:
+        return 0
+    import jax
+
+    return jax.process_index()
+
+
+def process_count() -> int:
+    if not _State.active:
+        return 1
+    import jax
+
+    return jax.process_count()
+
+
+def is_main() -> bool:
+    """True in the process that writes (process 0, or the only one)."""
+    return process_index() == 0
+
+
+def describe() -> str:
+    """'process 1 of 2' (for messages)."""
+    return f"process {process_index()} of {process_count()}"
+
+
+def first_line(error: BaseException) -> str:
+    text = str(error).strip()
+    return text.splitlines()[0] if text else type(error).__name__
+
+
+# ----------------------------------------------------------------- agreement
+def _digest(value: Any) -> bytes:
+    text = json.dumps(value, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).digest()[:_DIGEST]
+
+
+def file_digest(path: str | os.PathLike | None) -> str | None:
+    """sha256 of a file's bytes (None for None)."""
+    if path is None:
+        return None
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _exchange(sections: dict[str, Any] | None, error: str | None) -> np.ndarray:
+    """Every process's (status, section digests, error message) row: (P, L) uint8. A
+    collective: every process of the run calls it exactly once."""
+    from jax.experimental import multihost_utils
+
+    row = np.zeros(1 + _SLOTS * _DIGEST + _MESSAGE, np.uint8)
+    if error is not None:
+        row[0] = 1
+        message = error.encode()[:_MESSAGE]
+        row[1 + _SLOTS * _DIGEST : 1 + _SLOTS * _DIGEST + len(message)] = np.frombuffer(
+            message, np.uint8
+        )
+    else:
+        assert sections is not None and len(sections) <= _SLOTS, "too many config sections"
+        for i, name in enumerate(sorted(sections)):
+            digest = np.frombuffer(_digest(sections[name]), np.uint8)
+            row[1 + i * _DIGEST : 1 + (i + 1) * _DIGEST] = digest
+    _State.exchanged = True
+    return np.asarray(multihost_utils.process_allgather(row))
+
+
+def check_same(sections: dict[str, Any]) -> None:
+    """Stop every process, with a DistributedError, if any process's `sections` (JSON-able
+    values) differ from process 0's, or if a process reported an error before this point.
+    A collective: the first one of the run (nothing happens with one process)."""
+    if not _State.active or _State.exchanged:
+        return
+    rows = _exchange(sections, None)
+    n = len(rows)
+    for i in range(n):
+        if rows[i, 0]:
+            message = bytes(rows[i, 1 + _SLOTS * _DIGEST :]).rstrip(b"\0").decode(errors="replace")
+            raise DistributedError(f"process {i} of {n} failed before training: {message}")
+    names = sorted(sections)
+    differ = {}
+    for i in range(1, n):
+        for k, name in enumerate(names):
+            a = rows[0, 1 + k * _DIGEST : 1 + (k + 1) * _DIGEST]
+            b = rows[i, 1 + k * _DIGEST : 1 + (k + 1) * _DIGEST]
+            if not np.array_equal(a, b):
+                differ.setdefault(name, []).append(i)
+    if differ:
+        which = "; ".join(
+            f"{name} (process {', '.join(map(str, p))})" for name, p in differ.items()
+        )
+        raise DistributedError(
+            f"the processes disagree with process 0 on {which}: start every process with the "
+            "same flags, the same code and versions, and the same checkpoint"
+        )
+
+
+def check_same_config(resolved: dict[str, Any], checkpoint: Path | None) -> None:
+    """check_same on the train CLI's resolved config: every top-level section, the run
+    section without its output folder (only process 0 writes one; a default name holds a
+    time stamp), and the resumed checkpoint's content instead of its path."""
+    if not _State.active:
+        return
+    sections = dict(resolved)
+    sections["run"] = {k: v for k, v in resolved["run"].items() if k != "out"}
+    sections["resume_from"] = file_digest(checkpoint)
+    check_same(sections)
+
+
+# ------------------------------------------------------------ data movement
+def gather(tree: Any) -> Any:
+    """`tree` with every array that spans several processes replaced by its whole value,
+    as a local array; a collective that every process calls. Without several processes,
+    `tree` itself."""
+    if not _State.active:
+        return tree
+    import jax
+    import jax.numpy as jnp
+    from jax.experimental import multihost_utils
+
+    def one(x: Any) -> Any:
+        if not isinstance(x, jax.Array) or x.is_fully_addressable:
+            return x
+        if jnp.issubdtype(x.dtype, jax.dtypes.prng_key):
+            data = one(jax.random.key_data(x))
+            return jax.random.wrap_key_data(data, impl=jax.random.key_impl(x))
+        if x.is_fully_replicated:
+            return jnp.asarray(np.asarray(x.addressable_data(0)))
+        return jnp.asarray(multihost_utils.process_allgather(x, tiled=True))
+
+    return jax.tree.map(one, tree)
+
+
+def barrier(name: str) -> None:
+    """Wait until every process gets here (a collective; nothing with one process)."""
+    if _State.active:
+        from jax.experimental import multihost_utils
+
+        multihost_utils.sync_global_devices(name)
+
+
+class NoLog:
+    """What the processes other than 0 log to: nothing (RunLogger's interface)."""
+
+    def __init__(self, columns: tuple[str, ...]):
+        self.columns = columns
+
+    def log(self, rows: list[dict[str, float]]) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+# ------------------------------------------------------------------- the CLI
+def run_cli(
+    main: Callable[[list[str] | None], int], prog: str, argv: list[str] | None = None
+) -> int:
+    """flags.run_cli(main, prog, argv) (user errors as one line, exit status 2), so
+    that in a multi-process run every process stops when one fails:
+
+    * before the config comparison, the failing process sends its error through it, so
+      the others stop with "process i of N failed before training: ...";
+    * after it, the failing process leaves at once (os._exit, module docstring) and the
+      others fail in their next collective or when its heartbeats stop.
+    """
+
+    def guarded(argv: list[str] | None) -> int:
+        try:
+            return main(argv)
+        except BaseException as e:
+            if _State.active and not _State.exchanged and not isinstance(e, SystemExit):
+                try:
+                    _exchange(None, f"{type(e).__name__}: {first_line(e)}")
+                except Exception:
+                    pass  # the others are gone too
+            raise
+
+    try:
+        code = run_user_cli(guarded, prog, argv)
+    except SystemExit as e:
+        code = e.code if isinstance(e.code, int) else 1
+        if not _State.active:
+            raise
+    except BaseException as e:
+        if not _State.active:
+            raise
+        traceback.print_exc()
+        print(
+            f"{prog}: error: {describe()} failed: {first_line(e)}; if another process "
+            "died or was killed, its output says why",
+            file=sys.stderr,
+        )
+        code = 1
+    if _State.active and code != 0:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code
