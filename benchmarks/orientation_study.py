@@ -44,24 +44,28 @@ VARIANTS = {
         "canonical_quat": False,
         "bound_coef": 0.0,
         "train_collision_penalty": 0.0,
+        "train_reward": "",
     },
     "quat": {
         "canonical_quat": True,
         "bound_coef": 0.0,
         "train_collision_penalty": 0.0,
         "init_log_std": 0.0,
+        "train_reward": "",
     },
     "bound": {
         "bound_coef": 1.0,
         "canonical_quat": False,
         "train_collision_penalty": 0.0,
         "init_log_std": 0.0,
+        "train_reward": "",
     },
     "quat_bound": {
         "canonical_quat": True,
         "bound_coef": 1.0,
         "train_collision_penalty": 0.0,
         "init_log_std": 0.0,
+        "train_reward": "",
     },
     # orientation weighted more during the first half of training, then the env's reward
     "curr_half": {
@@ -87,6 +91,7 @@ VARIANTS = {
         "train_collision_penalty": 1.0,
         "train_reward_until": 0.5,
         "init_log_std": 0.0,
+        "train_reward": "",
     },
     "coll_half_std": {
         "canonical_quat": True,
@@ -94,6 +99,7 @@ VARIANTS = {
         "train_collision_penalty": 1.0,
         "train_reward_until": 0.5,
         "init_log_std": -1.0,
+        "train_reward": "",
     },
     "curr_half_nobound": {
         "canonical_quat": True,
