@@ -22,9 +22,12 @@ same key gives the same numbers however the arrays are sharded.
 With one device `make_mesh` returns None, `constrain` and `pmean` are the identity and
 `map_envs(f)` is `f`: the single-device program has no annotations at all.
 
-Several hosts: call `jax.distributed.initialize()` first in every process (see the
-README); `jax.devices()` then lists every host's devices and the same code runs
-everywhere, each process stepping its own hosts' share of the environments.
+Several processes (hosts): after `jax.distributed.initialize()` in every process (the
+train CLI does it, mara_mjx.distributed), `jax.devices()` lists every process's devices
+and the same code runs everywhere, each process stepping its own devices' share of the
+environments. A jitted function must not close over an array on another process's
+device: MJX's default device, `jax.devices()[0]`, is process 0's, so the arm's model is
+put on `jax.local_devices()[0]` (mara_mjx.envs.arm).
 """
 
 from __future__ import annotations
