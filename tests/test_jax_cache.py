@@ -31,8 +31,10 @@ from mara_mjx.cli import configure_jax
 folder = configure_jax(sys.argv[1] if len(sys.argv) > 1 else None)
 import jax.numpy as jnp
 y = jax.jit(lambda x: jnp.tanh(x @ x.T).sum())(jnp.ones((8, 8)))
+from jax._src import lru_cache
 print(json.dumps({"folder": None if folder is None else str(folder), "y": float(y),
-                  "hits": events.count("/jax/compilation_cache/cache_hits")}))
+                  "hits": events.count("/jax/compilation_cache/cache_hits"),
+                  "atomic": getattr(lru_cache.LRUCache.put, "_mara_mjx_atomic", False)}))
 """
 
 
@@ -98,6 +100,7 @@ def test_second_process_loads_from_the_default_folder_and_opt_out_does_not(clean
     folder = clean_env / "xdg" / "mara_mjx" / "jax"
     first = _result(_run(env))
     assert first["folder"] == str(folder) and first["hits"] == 0
+    assert first["atomic"]  # jax 0.10's in-place write replaced by write + rename
     entries = sorted(p.name for p in folder.iterdir())
     assert entries and not [n for n in entries if n.endswith(".tmp")], entries
 
