@@ -14,6 +14,7 @@ import dataclasses
 import types
 import typing
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any, Literal
 
 from mara_mjx.config import field_docs
@@ -120,9 +121,21 @@ class UserError(Exception):
     """Bad input from the user: reported as `prog: error: message`, exit status 2."""
 
 
-def configure_jax() -> None:
-    """Full-precision float32 matmuls and deterministic GPU reductions, before the backend
-    starts.
+def add_cache_argument(parser: argparse.ArgumentParser, default: str = "true") -> None:
+    """`--compilation_cache {true,false,PATH}` (mara_mjx.jax_cache)."""
+    parser.add_argument(
+        "--compilation_cache",
+        metavar="{true,false,PATH}",
+        help="JAX's persistent compilation cache: true (the per-user folder "
+        "$XDG_CACHE_HOME/mara_mjx/jax or ~/.cache/mara_mjx/jax, or JAX_COMPILATION_CACHE_DIR "
+        "if set), false (off), or a folder; the environment variable "
+        f"MARA_MJX_COMPILATION_CACHE takes the same values (default: {default})",
+    )
+
+
+def configure_jax(compilation_cache: str | bool | None = None) -> Path | None:
+    """Full-precision float32 matmuls, deterministic GPU reductions and the persistent
+    compilation cache, before anything compiles.
 
     * On GPUs JAX's default matmul precision may be TF32, which silently degrades the MJX
       kinematics and training. JAX_DEFAULT_MATMUL_PRECISION, if set, wins.
@@ -131,16 +144,24 @@ def configure_jax() -> None:
       gave 116 mm and 4.9 mm final errors on the H200 (benchmarks/NOTES.md). So
       `--xla_gpu_deterministic_ops=true` is added to XLA_FLAGS unless XLA_FLAGS already
       sets it (set it to false there to trade reproducibility for speed).
+    * JAX's persistent compilation cache, on unless `compilation_cache` (the
+      `--compilation_cache` flag; None: not given) or MARA_MJX_COMPILATION_CACHE turns it
+      off (`mara_mjx.jax_cache`). Returns the cache folder in use, or None.
     """
     import os
 
     import jax
+
+    from mara_mjx import jax_cache
+
+    folder = jax_cache.configure(compilation_cache)
 
     if "JAX_DEFAULT_MATMUL_PRECISION" not in os.environ:
         jax.config.update("jax_default_matmul_precision", "highest")
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_gpu_deterministic_ops" not in flags:
         os.environ["XLA_FLAGS"] = (flags + " --xla_gpu_deterministic_ops=true").strip()
+    return folder
 
 
 def run_cli(main: typing.Callable[[list[str] | None], int], prog: str, argv=None) -> int:

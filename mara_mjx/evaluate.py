@@ -31,6 +31,7 @@ from mara_mjx import runs
 from mara_mjx.cli import (
     Section,
     UserError,
+    add_cache_argument,
     add_checkpoint_argument,
     add_flags,
     configure_jax,
@@ -68,12 +69,13 @@ def build_parser() -> argparse.ArgumentParser:
         "(default: <run folder>/eval-<checkpoint>-<driver>.json)",
     )
     add_flags(parser, SECTIONS)
+    add_cache_argument(parser)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    configure_jax()
+    configure_jax(args.compilation_cache)
     path = ckpt.find_checkpoint(args.checkpoint)
     arrays, meta = ckpt.load_checkpoint(path)
     policy = policy_io.policy_from_checkpoint(arrays, meta)

@@ -40,6 +40,7 @@ from mara_mjx import runs
 from mara_mjx.cli import (
     Section,
     UserError,
+    add_cache_argument,
     add_checkpoint_argument,
     add_flags,
     configure_jax,
@@ -120,6 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="seconds to show each episode's final pose (default 1)",
     )
     add_flags(parser, SECTIONS)
+    add_cache_argument(parser)
     return parser
 
 
@@ -237,7 +239,7 @@ def episode_line(i: int, record: dict[str, Any], orientation: bool, tolerance_mm
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    configure_jax()
+    configure_jax(args.compilation_cache)
     video_path = check_video_args(args)
     path = ckpt.find_checkpoint(args.checkpoint)
     arrays, meta = ckpt.load_checkpoint(path)

@@ -64,6 +64,7 @@ from mara_mjx import distributed, runs, sharding
 from mara_mjx.cli import (
     Section,
     UserError,
+    add_cache_argument,
     add_flags,
     configure_jax,
     overrides,
@@ -128,6 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
         "checkpoint's run folder unless --out is given)",
     )
     add_flags(parser, SECTIONS)
+    add_cache_argument(parser)
     distributed.add_arguments(parser)
     return parser
 
@@ -207,7 +209,7 @@ def prepare_out(plan: Plan) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    configure_jax()
+    configure_jax(args.compilation_cache)
     distributed.initialize(distributed.launch_from(args))  # several processes: see there
     plan = resolve(args)
     try:

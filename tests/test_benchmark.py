@@ -50,7 +50,7 @@ def runs(tmp_path_factory):
     ppo = shlex.join(_cli("train", *tiny)) + " && " + shlex.join(_cli("brax", *tiny))
     ppo_proc = _popen(
         ["sh", "-c", ppo],
-        JAX_COMPILATION_CACHE_DIR=str(cache),
+        MARA_MJX_COMPILATION_CACHE=str(cache),
         JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
         JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0",
     )

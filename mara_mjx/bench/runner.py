@@ -203,20 +203,29 @@ def plot_throughput(
     finish_figure(fig, ax, path, title, "environments", "env steps / s")
 
 
-def configure(deterministic: bool) -> dict[str, str]:
+def configure(deterministic: bool, compilation_cache: str | None = None) -> dict[str, str]:
     """Before the backend starts: float32 matmuls at HIGHEST precision (unless
     JAX_DEFAULT_MATMUL_PRECISION says otherwise) and, unless `deterministic` or XLA_FLAGS
     says otherwise, XLA's faster non-deterministic GPU ops (the training CLI's default is
-    the reverse; `configure_jax` is shared). Returns what is in effect, for the JSON."""
+    the reverse; `configure_jax` is shared). The persistent compilation cache is off
+    unless `compilation_cache` (the flag), MARA_MJX_COMPILATION_CACHE or
+    JAX_COMPILATION_CACHE_DIR turns it on: the studies report compile (cold start)
+    times. Returns what is in effect, for the JSON."""
     import os
+
+    from mara_mjx import jax_cache
 
     flags = os.environ.get("XLA_FLAGS", "")
     if not deterministic and "xla_gpu_deterministic_ops" not in flags:
         os.environ["XLA_FLAGS"] = (flags + " --xla_gpu_deterministic_ops=false").strip()
-    configure_jax()
+    user_set = os.environ.get(jax_cache.ENV_VAR) or os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    if compilation_cache is None and not user_set:
+        compilation_cache = "false"
+    folder = configure_jax(compilation_cache)
     return {
         "XLA_FLAGS": os.environ.get("XLA_FLAGS", ""),
         "matmul_precision": str(jax.config.jax_default_matmul_precision),
+        "compilation_cache": str(folder),
     }
 
 
@@ -232,7 +241,7 @@ def recorded_quick(path: Path) -> bool:
 
 def build_parser(description: str) -> argparse.ArgumentParser:
     """`STUDY [flags]`: one subcommand per study, flags generated from its config."""
-    from mara_mjx.cli import Section, add_flags
+    from mara_mjx.cli import Section, add_cache_argument, add_flags
 
     parser = argparse.ArgumentParser(
         prog="python -m mara_mjx.benchmark",
@@ -245,6 +254,7 @@ def build_parser(description: str) -> argparse.ArgumentParser:
         study = load_study(name)
         p = sub.add_parser(name, help=study.summary, description=study.summary, allow_abbrev=False)
         add_flags(p, [Section(name, study.config, dotted=False)])
+        add_cache_argument(p, default="false: the studies time compiles")
     return parser
 
 
@@ -284,7 +294,7 @@ def main(argv: Sequence[str] | None = None, description: str = "") -> None:
     config = resolve(parser, argv)
     name = next(n for n in STUDIES if load_study(n).config is type(config))
     study = load_study(name)
-    settings = configure(config.deterministic)
+    settings = configure(config.deterministic, parser.parse_args(argv).compilation_cache)
     if hasattr(config, "check_devices"):  # needs the backend, so after configure
         try:
             config.check_devices()
