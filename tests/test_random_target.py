@@ -37,6 +37,7 @@ from mara_mjx.gym import gym_id
 from mara_mjx.ppo import PPOConfig, RunningStats
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo.networks import make_network
+from mara_mjx.ppo.policy import load_policy
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data"
@@ -430,7 +431,7 @@ def test_play_shows_each_episode_target(run_dir):
 
     task = RANDOM_TASKS[ORIENT]  # the marker is under test, not the physics
     env = _Counting(task, random_target_config(task).replace(max_episode_steps=1))
-    policy = ckpt.load_policy(run_dir)
+    policy = load_policy(run_dir)
 
     class Viewer:
         running = True
