@@ -1,0 +1,76 @@
+"""Trainer-side orientation fixes (issue 11): the canonical quaternion reading, the
+reward-hyperparameter curriculum's parsing, and the env-resolved config. Fast: no env step
+is compiled."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mara_mjx
+from mara_mjx.ppo.config import PRESETS, PPOConfig, for_env, reward_curriculum
+from mara_mjx.ppo.networks import RunningStats, canonical_quat, forward, make_network
+
+
+def test_canonical_quat_flips_only_negative_w():
+    obs = jnp.arange(16.0).reshape(1, 16) * 0.1
+    neg = obs.at[0, 9:13].set(jnp.array([-0.5, 0.5, -0.5, 0.5]))
+    out = canonical_quat(neg, 9)
+    np.testing.assert_allclose(out[0, 9:13], [0.5, -0.5, 0.5, -0.5])
+    np.testing.assert_array_equal(out[0, :9], neg[0, :9])  # the rest untouched
+    np.testing.assert_array_equal(out[0, 13:], neg[0, 13:])
+    np.testing.assert_array_equal(canonical_quat(obs, 9), obs)  # w >= 0: unchanged
+    np.testing.assert_array_equal(canonical_quat(neg, -1), neg)  # no quaternion block
+
+
+def test_policy_reads_q_and_minus_q_alike():
+    """q and -q are one rotation: with canonical_quat the networks cannot tell them apart,
+    without it they do (so the test could fail)."""
+    env = mara_mjx.make("MARAOrient")
+    key = jax.random.key(0)
+    obs = jax.random.normal(key, (5, 16))
+    flipped = obs.at[:, 9:13].multiply(-1.0)
+    stats = RunningStats.create(16)
+    outputs = {}
+    for on in (True, False):
+        config = for_env(PPOConfig(canonical_quat=on, relative_actions=True), env)
+        network = make_network(config, 6)
+        params = network.init(jax.random.key(1), obs[0], obs[0])
+        a = forward(network, params, stats, obs, 10.0)
+        b = forward(network, params, stats, flipped, 10.0)
+        outputs[on] = max(float(jnp.max(jnp.abs(x - y))) for x, y in zip(a, b, strict=True))
+    assert outputs[True] == 0.0
+    assert outputs[False] > 1e-6
+
+
+def test_for_env_resolves_the_quaternion_block():
+    orient, plain = mara_mjx.make("MARACollisionOrient"), mara_mjx.make("MARA")
+    default = PRESETS["default"]
+    assert default.canonical_quat and default.quat_index == -1
+    assert for_env(default, orient).quat_index == 9
+    assert for_env(default, plain).quat_index == -1
+    assert for_env(default.replace(canonical_quat=False), orient).quat_index == -1
+
+
+def test_reward_curriculum_parses_and_names_bad_input():
+    assert reward_curriculum("") == {}
+    assert reward_curriculum("beta=0.5, gamma=0.02") == {"beta": 0.5, "gamma": 0.02}
+    for bad, words in [
+        ("bet=0.5", "alpha"),  # names the valid fields
+        ("beta", "NAME=VALUE"),
+        ("beta=x", "not a number"),
+        ("beta=-1", ">= 0"),
+        ("beta=nan", ">= 0"),
+    ]:
+        with pytest.raises(ValueError, match=words):
+            reward_curriculum(bad)
+    with pytest.raises(ValueError, match="train_reward"):
+        PPOConfig(train_reward="delta=oops")
+    with pytest.raises(ValueError, match="train_reward_until"):
+        PPOConfig(train_reward_until=0.0)
+    with pytest.raises(ValueError, match="train_collision_penalty"):
+        PPOConfig(train_collision_penalty=-1.0)
+    with pytest.raises(ValueError, match="bound_coef"):
+        PPOConfig(bound_coef=float("inf"))
