@@ -23,6 +23,7 @@ from mara_mjx.export import main as export_main
 from mara_mjx.plots import main as plots_main
 from mara_mjx.ppo import PPOConfig, RunningStats, make_policy
 from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo.config import for_env
 from mara_mjx.ppo.networks import make_network
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -43,7 +44,9 @@ def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bo
         obs_clip=5.0,
         relative_actions=relative,
         hidden_obs=(13, 14, 15) if relative else (),  # MARAOrient's TCP velocity
+        canonical_quat=relative,  # MARAOrient: the export must flip quat_err's sign too
     )
+    config = for_env(config, env)
     network = make_network(config, env.action_size)
     key, init_key, noise_key, stats_key = jax.random.split(jax.random.key(seed), 4)
     obs = jnp.zeros(env.observation_size)
