@@ -187,12 +187,20 @@ def launch_from(args: argparse.Namespace, environ: dict[str, str] | None = None)
         upper = f"0..{num_processes - 1}" if num_processes else ">= 0"
         if process_id < 0 or (num_processes is not None and process_id >= num_processes):
             raise DistributedError(f"process_id={process_id} is out of range; choose {upper}")
-    given = (coordinator, num_processes, process_id)
-    if any(v is not None for v in given):
+    given = {"coordinator": coordinator, "num_processes": num_processes, "process_id": process_id}
+    slurm = _slurm_tasks(environ) > 1
+    if any(v is not None for v in given.values()):
         if num_processes == 1 and coordinator is None:
             return None  # explicitly one process
+        missing = [k for k, v in given.items() if v is None]
+        if missing and not slurm:
+            raise DistributedError(
+                "several processes need --coordinator, --num_processes and --process_id "
+                f"(or {', '.join(ENV_VARS[k] for k in given)}); missing: "
+                f"{', '.join(missing)} (under SLURM, JAX finds what is not given)"
+            )
         return Launch(coordinator, num_processes, process_id, heartbeat, join, "flags")
-    if _slurm_tasks(environ) > 1:
+    if slurm:
         return Launch(None, None, None, heartbeat, join, "slurm")
     return None
 
