@@ -253,7 +253,9 @@ def test_processes_that_disagree_stop_with_a_clear_error(env_vars, tmp_path):
     # ... and process 1 failing before the comparison (a missing checkpoint)
     missing = str(tmp_path / "missing")
     procs += start_pair(env_vars, [*TOY, "--out", str(tmp_path / "b")], ["--resume", missing])
-    (c0, _, e0), (c1, _, e1), (c2, _, e2), (c3, _, e3) = finish(procs, timeout=120)
+    # ... and both asking for fewer devices than the processes have
+    procs += start_pair(env_vars, [*TOY, "--out", str(tmp_path / "c"), "--devices", "1"])
+    (c0, _, e0), (c1, _, e1), (c2, _, e2), (c3, _, e3), *devices = finish(procs, timeout=120)
     assert (c0, c1) == (2, 2), (e0[-2000:], e1[-2000:])
     for err in (e0, e1):
         assert "the processes disagree with process 0 on ppo (process 1)" in err
@@ -261,6 +263,8 @@ def test_processes_that_disagree_stop_with_a_clear_error(env_vars, tmp_path):
     expected = f"CheckpointError: checkpoint or run folder {missing!r} does not exist"
     assert f"process 1 of 2 failed before training: {expected}" in e2, e2[-2000:]
     assert f"{missing!r} does not exist" in e3
+    for code, _, err in devices:
+        assert code == 2 and "devices=1 would leave out the devices of some of the 2" in err
 
 
 def test_killing_a_process_stops_the_other(env_vars, tmp_path):
