@@ -5,10 +5,11 @@ minutes), from the repository root:
 
     python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir \
         --target /tmp/site .whl/*.whl && export PYTHONPATH=/tmp/site:$PWD || exit 1
-    export PYTHONUNBUFFERED=1; nvidia-smi -L > $OUT/gpus.txt
+    export PYTHONUNBUFFERED=1 NCCL_NVLS_ENABLE=0; nvidia-smi -L > $OUT/gpus.txt
     timeout 330 python3 benchmarks/multiprocess.py --out $OUT/multiprocess --timeout 150
 
-(results: benchmarks/results/multiprocess/)
+(results: benchmarks/results/multiprocess/). The processes inherit the environment (there:
+NCCL_NVLS_ENABLE=0, NVLink multicast off, as the device machines require).
 
 runs `python -m mara_mjx.train` twice, one after the other, with the same flags (the
 'default' preset, MARA, --num_envs 4096 = 2048 per GPU, --updates updates, a checkpoint
