@@ -1,8 +1,15 @@
 """2 processes x 1 GPU against 1 process x 2 GPUs on the same global batch (the train CLI).
 
-On a host with 2 GPUs (after the device README's wheel install; PYTHONPATH set):
+On a host with 2 GPUs (the device machine 'nvidia-h200-x2', carrying .whl; about 3
+minutes), from the repository root:
 
-    PYTHONUNBUFFERED=1 python3 benchmarks/multiprocess.py --out $OUT/multiprocess
+    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir \
+        --target /tmp/site .whl/*.whl && export PYTHONPATH=/tmp/site:$PWD || exit 1
+    export PYTHONUNBUFFERED=1 NCCL_NVLS_ENABLE=0; nvidia-smi -L > $OUT/gpus.txt
+    timeout 330 python3 benchmarks/multiprocess.py --out $OUT/multiprocess --timeout 150
+
+(results: benchmarks/results/multiprocess/). The processes inherit the environment (there:
+NCCL_NVLS_ENABLE=0, NVLink multicast off, as the device machines require).
 
 runs `python -m mara_mjx.train` twice, one after the other, with the same flags (the
 'default' preset, MARA, --num_envs 4096 = 2048 per GPU, --updates updates, a checkpoint
@@ -223,6 +230,48 @@ def markdown(report: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def compare(args: argparse.Namespace, work: Path, common: list[str]) -> dict[str, Any]:
+    """Run both layouts and compare them (the report)."""
+    results = {}
+    for name in args.order:
+        print(f"running {name} ...", flush=True)
+        results[name] = run_layout(name, args, work, common)
+        print(f"{name}: {results[name]['env_steps_per_s'] / 1e6:.3f} M env steps/s", flush=True)
+    final = f"checkpoints/ckpt_{args.updates:08d}.npz"
+    params = compare_checkpoints(work / "single" / final, work / "multi" / final)
+    rewards = [results[n]["reward_mean"] for n in ("single", "multi")]
+    return {
+        "env": args.env,
+        "num_envs": args.num_envs,
+        "num_steps": args.num_steps,
+        "updates": args.updates,
+        "updates_per_call": args.updates_per_call,
+        "platform": args.platform,
+        "order": args.order,
+        "single": results["single"],
+        "multi": results["multi"],
+        "multi_over_single": results["multi"]["env_steps_per_s"]
+        / results["single"]["env_steps_per_s"],
+        "params": params,
+        "reward_max_abs_diff": float(np.max(np.abs(np.subtract(*rewards)))),
+    }
+
+
+def write_logs(path: Path, work: Path) -> None:
+    """Every process's output, and each run's progress.csv and config.json, as a tarball."""
+    with tarfile.open(path, "w:gz") as tar:
+        for f in sorted(work.glob("*.log")):
+            tar.add(f, arcname=f.name)
+        for name in ("single", "multi"):
+            for f in ("progress.csv", "config.json"):
+                if (work / name / f).exists():
+                    tar.add(work / name / f, arcname=f"{name}/{f}")
+        info = tarfile.TarInfo("README")
+        text = b"Outputs of benchmarks/multiprocess.py (see multiprocess.json).\n"
+        info.size = len(text)
+        tar.addfile(info, io.BytesIO(text))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", required=True, help="folder for the JSON, markdown, logs")
@@ -245,41 +294,12 @@ def main(argv: list[str] | None = None) -> int:
     common = train_flags(args)
     with tempfile.TemporaryDirectory(prefix="multiprocess-") as tmp:
         work = Path(tmp)
-        results = {}
-        for name in args.order:
-            print(f"running {name} ...", flush=True)
-            results[name] = run_layout(name, args, work, common)
-            print(f"{name}: {results[name]['env_steps_per_s'] / 1e6:.3f} M env steps/s", flush=True)
-        final = f"checkpoints/ckpt_{args.updates:08d}.npz"
-        params = compare_checkpoints(work / "single" / final, work / "multi" / final)
-        rewards = [results[n]["reward_mean"] for n in ("single", "multi")]
-        report = {
-            "env": args.env,
-            "num_envs": args.num_envs,
-            "num_steps": args.num_steps,
-            "updates": args.updates,
-            "updates_per_call": args.updates_per_call,
-            "platform": args.platform,
-            "order": args.order,
-            "single": results["single"],
-            "multi": results["multi"],
-            "multi_over_single": results["multi"]["env_steps_per_s"]
-            / results["single"]["env_steps_per_s"],
-            "params": params,
-            "reward_max_abs_diff": float(np.max(np.abs(np.subtract(*rewards)))),
-        }
+        try:
+            report = compare(args, work, common)
+        finally:  # the logs come back even when a layout failed
+            write_logs(out / "logs.tar.gz", work)
         (out / "multiprocess.json").write_text(json.dumps(report, indent=2) + "\n")
         (out / "multiprocess.md").write_text(markdown(report))
-        with tarfile.open(out / "logs.tar.gz", "w:gz") as tar:
-            for name in ("single", "multi"):
-                for f in sorted(work.glob(f"{name}-*.log")):
-                    tar.add(f, arcname=f.name)
-                for f in ("progress.csv", "config.json"):
-                    tar.add(work / name / f, arcname=f"{name}/{f}")
-            info = tarfile.TarInfo("README")
-            text = b"Outputs of benchmarks/multiprocess.py (see multiprocess.json).\n"
-            info.size = len(text)
-            tar.addfile(info, io.BytesIO(text))
     print(markdown(report))
     return 0
 

@@ -29,7 +29,8 @@ What the train CLI does differently when several processes take part:
   the content of the checkpoint it resumes from) with process 0's (`check_same`), and all
   stop with an error naming the sections that differ. A process that fails before this
   point (a bad flag value, a missing checkpoint) sends its error instead, so every process
-  stops with it rather than waiting for the missing one.
+  stops with it rather than waiting for the missing one. `--devices` must be 0 (all):
+  fewer would leave some processes without environments.
 * Resuming: every process reads the same checkpoint (the run folder must be visible to all
   of them, e.g. on a shared file system); the comparison above checks that they did.
 * A process that fails after that point leaves at once (`os._exit`), without JAX's
@@ -187,12 +188,20 @@ def launch_from(args: argparse.Namespace, environ: dict[str, str] | None = None)
         upper = f"0..{num_processes - 1}" if num_processes else ">= 0"
         if process_id < 0 or (num_processes is not None and process_id >= num_processes):
             raise DistributedError(f"process_id={process_id} is out of range; choose {upper}")
-    given = (coordinator, num_processes, process_id)
-    if any(v is not None for v in given):
+    given = {"coordinator": coordinator, "num_processes": num_processes, "process_id": process_id}
+    slurm = _slurm_tasks(environ) > 1
+    if any(v is not None for v in given.values()):
         if num_processes == 1 and coordinator is None:
             return None  # explicitly one process
+        missing = [k for k, v in given.items() if v is None]
+        if missing and not slurm:
+            raise DistributedError(
+                "several processes need --coordinator, --num_processes and --process_id "
+                f"(or {', '.join(ENV_VARS[k] for k in given)}); missing: "
+                f"{', '.join(missing)} (under SLURM, JAX finds what is not given)"
+            )
         return Launch(coordinator, num_processes, process_id, heartbeat, join, "flags")
-    if _slurm_tasks(environ) > 1:
+    if slurm:
         return Launch(None, None, None, heartbeat, join, "slurm")
     return None
 
@@ -354,13 +363,23 @@ def check_same(sections: dict[str, Any]) -> None:
 def check_same_config(resolved: dict[str, Any], checkpoint: Path | None) -> None:
     """check_same on the train CLI's resolved config: every top-level section, the run
     section without its output folder (only process 0 writes one; a default name holds a
-    time stamp), and the resumed checkpoint's content instead of its path."""
+    time stamp), and the resumed checkpoint's content instead of its path. Then a
+    DistributedError if run.devices leaves out any process's devices."""
     if not _State.active:
         return
     sections = dict(resolved)
     sections["run"] = {k: v for k, v in resolved["run"].items() if k != "out"}
     sections["resume_from"] = file_digest(checkpoint)
     check_same(sections)
+    import jax
+
+    devices = resolved["run"].get("devices", 0)
+    if devices not in (0, jax.device_count()):
+        raise DistributedError(
+            f"devices={devices} would leave out the devices of some of the "
+            f"{jax.process_count()} processes; with several processes use them all "
+            f"(devices=0, i.e. {jax.device_count()})"
+        )
 
 
 # ------------------------------------------------------------ data movement

@@ -206,9 +206,9 @@ def test_two_processes_train_like_one(runs):
     final = params_of(out / ckpt.CHECKPOINT_DIR / ckpt.checkpoint_name(UPDATES))
     first = params_of(out / ckpt.CHECKPOINT_DIR / ckpt.checkpoint_name(1))
     assert max_diff(final, first) > 1e-3  # the params did train
-    assert max_diff(ref[1], ref[2]) < 1e-5
-    assert max_diff(final, ref[2]) < 1e-5, "2 processes differ from 1 process x 2 devices"
-    assert max_diff(final, ref[1]) < 1e-5, "2 processes differ from 1 process x 1 device"
+    # measured (jax 0.10.2): 0 (the same partitioned program) and 1.2e-7
+    assert max_diff(final, ref[2]) < 1e-6, "2 processes differ from 1 process x 2 devices"
+    assert max_diff(final, ref[1]) < 1e-6, "2 processes differ from 1 process x 1 device"
     config = json.loads((out / "config.json").read_text())
     assert config["versions"]["devices"] == ["cpu", "cpu"]  # one device from each process
 
@@ -253,7 +253,9 @@ def test_processes_that_disagree_stop_with_a_clear_error(env_vars, tmp_path):
     # ... and process 1 failing before the comparison (a missing checkpoint)
     missing = str(tmp_path / "missing")
     procs += start_pair(env_vars, [*TOY, "--out", str(tmp_path / "b")], ["--resume", missing])
-    (c0, _, e0), (c1, _, e1), (c2, _, e2), (c3, _, e3) = finish(procs, timeout=120)
+    # ... and both asking for fewer devices than the processes have
+    procs += start_pair(env_vars, [*TOY, "--out", str(tmp_path / "c"), "--devices", "1"])
+    (c0, _, e0), (c1, _, e1), (c2, _, e2), (c3, _, e3), *devices = finish(procs, timeout=120)
     assert (c0, c1) == (2, 2), (e0[-2000:], e1[-2000:])
     for err in (e0, e1):
         assert "the processes disagree with process 0 on ppo (process 1)" in err
@@ -261,6 +263,8 @@ def test_processes_that_disagree_stop_with_a_clear_error(env_vars, tmp_path):
     expected = f"CheckpointError: checkpoint or run folder {missing!r} does not exist"
     assert f"process 1 of 2 failed before training: {expected}" in e2, e2[-2000:]
     assert f"{missing!r} does not exist" in e3
+    for code, _, err in devices:
+        assert code == 2 and "devices=1 would leave out the devices of some of the 2" in err
 
 
 def test_killing_a_process_stops_the_other(env_vars, tmp_path):
@@ -342,6 +346,8 @@ def test_launch_settings():
         "flags",
     )
     assert launch(["--process_id", "0"], env).process_id == 0  # flags win over variables
+    slurm_partial = launch(["--coordinator", "h:1"], {"SLURM_JOB_ID": "7", "SLURM_NTASKS": "2"})
+    assert slurm_partial.coordinator == "h:1" and slurm_partial.process_id is None
     slurm = {"SLURM_JOB_ID": "7", "SLURM_NTASKS": "2"}
     assert launch([], slurm).source == "slurm" and launch([], slurm).coordinator is None
     assert launch([], {**slurm, "SLURM_NTASKS": "1"}) is None
@@ -357,6 +363,7 @@ def test_launch_settings():
         "MARA_PROCESS_ID='x' is not an integer": ([], {"MARA_PROCESS_ID": "x"}),
         "heartbeat_timeout must be >= 1": (["--heartbeat_timeout", "0"], {}),
         "distributed mode 'on' is invalid": ([], {"MARA_DISTRIBUTED": "on"}),
+        "missing: num_processes, process_id": (["--coordinator", "h:1"], {}),
     }
     for message, (argv, environ) in bad.items():
         with pytest.raises(UserError, match=message.replace("(", r"\(")):
