@@ -3,7 +3,8 @@
 A run folder (`python -m mara_mjx.train --out`, default runs/<env>-<timestamp>) holds
 config.json, progress.csv, tb/, checkpoints/ckpt_<update>.npz (`mara_mjx.ppo.checkpoint`
 reads and writes those), and at the end eval.json, summary.json and plots/. This module
-has the folder-level pieces the CLIs share: pruning old checkpoints, JSON written
+has the folder-level pieces the CLIs share: preparing a training run's folder (never
+mixing a new run into an old one), pruning old checkpoints, JSON written
 atomically, a writability probe, the provenance (versions, git commit) stored with every
 checkpoint and report, the guard that keeps other files out of `checkpoints/`, and
 rebuilding a run's env from its saved config.
