@@ -50,6 +50,7 @@ def seed_row(seed: int, result: EvalResult | None, records: dict[str, Any]) -> d
         )
     for mm in ACCURACY_THRESHOLDS_MM:
         row[f"time_to_{mm:g}mm_s"] = records.get(f"{mm:g}mm", {}).get("time_s")
+        row[f"env_steps_to_{mm:g}mm"] = records.get(f"{mm:g}mm", {}).get("env_steps")
     return row
 
 
@@ -85,7 +86,8 @@ def summarise(
         "eval": eval_config,
         "time_to_accuracy_metric": "wall-clock s from command start until the deterministic "
         "mean per-axis error (det_error_mm) first drops below the threshold; median over "
-        "the seeds that reached it",
+        "the seeds that reached it. The seeds of one run train together, so each seed's "
+        "time includes the others' work: compare env steps, or single runs, for speed",
         "per_seed": rows,
         "across_seeds": across,
         "paper": PAPER_RESULTS.get(env_name),
