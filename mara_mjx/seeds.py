@@ -108,20 +108,24 @@ def find_resume(path: str, given_run: dict[str, Any]) -> tuple[Path, Path | None
     if given_run.get("seeds", len(seeds)) != len(seeds):
         raise UserError(f"--seeds cannot change when resuming a run of {len(seeds)} seeds")
     top = Path(path).resolve()
-    common = None
-    for s in seeds:
-        readable = set()
-        for p in ckpt.list_checkpoints(folder(top, s)):
-            with contextlib.suppress(ckpt.CheckpointError):
-                ckpt.load_checkpoint(p)
-                readable.add(p.name)
-        common = readable if common is None else common & readable
-    if not common:
-        raise ckpt.CheckpointError(
-            f"the seeds of {str(path)!r} have no checkpoint of a common update; if the run "
-            "was stopped before its first checkpoint, start it again with the same --out"
-        )
-    return folder(top, seeds[0]) / ckpt.CHECKPOINT_DIR / max(common), top, {"seeds": len(seeds)}
+    names = [{p.name for p in ckpt.list_checkpoints(folder(top, s))} for s in seeds]
+    skipped = []
+    for name in sorted(set.intersection(*names), reverse=True):  # newest first
+        try:
+            for s in seeds:
+                ckpt.load_checkpoint(folder(top, s) / ckpt.CHECKPOINT_DIR / name)
+        except ckpt.CheckpointError as e:
+            skipped.append(str(e))
+            continue
+        if skipped:
+            print(f"warning: skipped unreadable checkpoint(s): {'; '.join(skipped)}; using "
+                  f"{name} of every seed", file=sys.stderr)  # fmt: skip
+        return folder(top, seeds[0]) / ckpt.CHECKPOINT_DIR / name, top, {"seeds": len(seeds)}
+    raise ckpt.CheckpointError(
+        f"the seeds of {str(path)!r} have no readable checkpoint of a common update "
+        f"{skipped or ''}; if the run was stopped before its first checkpoint, start it "
+        "again with the same --out"
+    )
 
 
 # --------------------------------------------------------------- training
