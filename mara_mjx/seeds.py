@@ -196,7 +196,11 @@ def train(plan: Any, env: Any, trainer: Any, host: Host) -> int:
     for lane in lanes:
         resolved = {**lane.meta, "resume_from": str(lane.plan.checkpoint or "") or None}
         runs.write_json(lane.plan.out / "config.json", resolved)
-    resolved = {**lanes[0].meta, "ppo": plan.ppo.to_dict(), "run": plan.run.to_dict()}
+    resolved = {
+        **lanes[0].meta,
+        "ppo": plan.ppo.to_dict(),
+        "run": plan.run.replace(out=str(top)).to_dict(),
+    }
     print(json.dumps({**resolved, "seeds": list(seeds)}, indent=2), flush=True)
     runs.write_json(top / SEEDS_JSON, {"env_name": plan.env_name, "seeds": list(seeds)})
 
