@@ -46,8 +46,6 @@ On CPU (the test suite) the collectives between processes are gloo's
 
 from __future__ import annotations
 
-import argparse
-import dataclasses
 import hashlib
 import inspect
 import json
@@ -60,161 +58,22 @@ from typing import Any
 
 import numpy as np
 
-from mara_mjx.cli import UserError
 from mara_mjx.cli import run_cli as run_user_cli
+from mara_mjx.launch import (  # noqa: F401  (re-exported: the CLI's launch flags)
+    ENV_VARS,
+    MODES,
+    DistributedError,
+    Launch,
+    add_arguments,
+    launch_from,
+)
 
-MODES = ("auto", "off")
-ENV_VARS = {
-    "coordinator": "MARA_COORDINATOR",
-    "num_processes": "MARA_NUM_PROCESSES",
-    "process_id": "MARA_PROCESS_ID",
-    "distributed": "MARA_DISTRIBUTED",
-    "heartbeat_timeout": "MARA_HEARTBEAT_TIMEOUT",
-    "join_timeout": "MARA_JOIN_TIMEOUT",
-}
 _SLOTS, _DIGEST, _MESSAGE = 16, 8, 1024  # config sections, bytes per digest, error bytes
-
-
-class DistributedError(UserError):
-    """A multi-process launch that cannot work (bad settings, a process that failed or
-    disagrees): a user error (one line, exit status 2)."""
-
-
-@dataclasses.dataclass(frozen=True)
-class Launch:
-    """How this process joins a multi-process run (None fields: JAX finds them, e.g. from
-    SLURM)."""
-
-    coordinator: str | None = None
-    num_processes: int | None = None
-    process_id: int | None = None
-    heartbeat_timeout: int | None = None
-    join_timeout: int | None = None
-    source: str = "flags"
-    """Where the settings came from: 'flags' (flags or MARA_* variables) or 'slurm'."""
 
 
 class _State:
     active = False  # jax.distributed initialised by this module
     exchanged = False  # the processes have compared configs (or errors)
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The flags of the module docstring, in their own group."""
-    group = parser.add_argument_group(
-        "several processes (jax.distributed; each flag also reads the MARA_* variable named)"
-    )
-    group.add_argument(
-        "--coordinator",
-        metavar="HOST:PORT",
-        help="address of process 0, which serves the coordination there; every process "
-        "gives the same (MARA_COORDINATOR)",
-    )
-    group.add_argument(
-        "--num_processes",
-        type=int,
-        metavar="N",
-        help="number of processes in the run (MARA_NUM_PROCESSES)",
-    )
-    group.add_argument(
-        "--process_id",
-        type=int,
-        metavar="I",
-        help="this process, 0..N-1; process 0 writes the run folder (MARA_PROCESS_ID)",
-    )
-    group.add_argument(
-        "--distributed",
-        choices=MODES,
-        help="auto: join a multi-process run when the flags above are given or SLURM runs "
-        "this as one of several tasks; off: always one process (MARA_DISTRIBUTED; "
-        "default: auto)",
-    )
-    group.add_argument(
-        "--heartbeat_timeout",
-        type=int,
-        metavar="SECONDS",
-        help="a process that stops answering for this long counts as dead and the others "
-        "stop (MARA_HEARTBEAT_TIMEOUT; default: JAX's, 100)",
-    )
-    group.add_argument(
-        "--join_timeout",
-        type=int,
-        metavar="SECONDS",
-        help="how long to wait for every process to join (MARA_JOIN_TIMEOUT; default: JAX's, 300)",
-    )
-
-
-def launch_from(args: argparse.Namespace, environ: dict[str, str] | None = None) -> Launch | None:
-    """The launch that flags (first) and MARA_* variables ask for; None for one process.
-    DistributedError names the bad setting and the valid choices."""
-    environ = os.environ if environ is None else environ
-
-    def get(name: str, kind: type) -> Any:
-        value = getattr(args, name, None)
-        if value is not None:
-            return value
-        text = environ.get(ENV_VARS[name], "").strip()
-        if not text:
-            return None
-        if kind is int:
-            try:
-                return int(text)
-            except ValueError:
-                raise DistributedError(f"{ENV_VARS[name]}={text!r} is not an integer") from None
-        return text
-
-    mode = get("distributed", str) or "auto"
-    if mode not in MODES:
-        raise DistributedError(f"distributed mode {mode!r} is invalid; choose one of {MODES}")
-    coordinator = get("coordinator", str)
-    num_processes = get("num_processes", int)
-    process_id = get("process_id", int)
-    heartbeat, join = get("heartbeat_timeout", int), get("join_timeout", int)
-    for name, value in (("heartbeat_timeout", heartbeat), ("join_timeout", join)):
-        if value is not None and value < 1:
-            raise DistributedError(f"{name} must be >= 1 second, got {value}")
-    if mode == "off":
-        return None
-    if coordinator is not None:
-        host, _, port = coordinator.rpartition(":")
-        if not host or not port.isdigit() or not 0 < int(port) < 65536:
-            raise DistributedError(
-                f"coordinator {coordinator!r} is not HOST:PORT (e.g. localhost:12355 or "
-                "node001:12355, the address of process 0)"
-            )
-    if num_processes is not None and num_processes < 1:
-        raise DistributedError(f"num_processes must be >= 1, got {num_processes}")
-    if process_id is not None:
-        upper = f"0..{num_processes - 1}" if num_processes else ">= 0"
-        if process_id < 0 or (num_processes is not None and process_id >= num_processes):
-            raise DistributedError(f"process_id={process_id} is out of range; choose {upper}")
-    given = {"coordinator": coordinator, "num_processes": num_processes, "process_id": process_id}
-    slurm = _slurm_tasks(environ) > 1
-    if any(v is not None for v in given.values()):
-        if num_processes == 1 and coordinator is None:
-            return None  # explicitly one process
-        missing = [k for k, v in given.items() if v is None]
-        if missing and not slurm:
-            raise DistributedError(
-                "several processes need --coordinator, --num_processes and --process_id "
-                f"(or {', '.join(ENV_VARS[k] for k in given)}); missing: "
-                f"{', '.join(missing)} (under SLURM, JAX finds what is not given)"
-            )
-        return Launch(coordinator, num_processes, process_id, heartbeat, join, "flags")
-    if slurm:
-        return Launch(None, None, None, heartbeat, join, "slurm")
-    return None
-
-
-def _slurm_tasks(environ: dict[str, str]) -> int:
-    """The number of tasks of this SLURM job step (1 outside SLURM)."""
-    if "SLURM_JOB_ID" not in environ:
-        return 1
-    for name in ("SLURM_STEP_NUM_TASKS", "SLURM_NTASKS"):
-        text = environ.get(name, "")
-        if text.isdigit():
-            return int(text)
-    return 1
 
 
 def initialize(launch: Launch | None) -> None:

@@ -3,6 +3,7 @@
     python -m mara_mjx.evaluate runs/MARA-20250101-120000            # newest checkpoint
     python -m mara_mjx.evaluate runs/.../checkpoints/ckpt_00000763.npz --episodes 10
     python -m mara_mjx.evaluate RUN --driver real --velocity 0.3      # on the real-speed driver
+    python -m mara_mjx.evaluate RUN_OF_SEEDS    # a --seeds N run: every seed, and across seeds
 
 Runs the deterministic policy (the Gaussian mean) in `--episodes` (10) episodes that start
 from the reset pose perturbed by a uniform joint noise of half-width `--noise` (0.02 rad)
@@ -16,6 +17,10 @@ and writes JSON (config, versions, per-episode numbers, summary) to --json (defa
 Env flags (--driver, --velocity, --max_episode_steps, ...) override the checkpoint's env
 config, e.g. to run a policy trained with the train driver on the real-speed driver.
 
+A run of several seeds (`train --seeds N`): every seed's newest checkpoint in one vmapped
+evaluation; prints one row per seed and the mean and worst seed per axis, and writes
+JSON and markdown (default <run folder>/eval-seeds-<driver>.json, .md; mara_mjx.seeds).
+
 Random-target tasks (MARARandomTarget, ...): 1,000 held-out target poses instead, each
 episode run to the horizon, with per-axis mean, median, 95th percentile and worst error,
 JSON, markdown and a figure (`mara_mjx.ppo.target_eval`).
@@ -27,7 +32,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from mara_mjx import runs
+from mara_mjx import runs, seeds
 from mara_mjx.cli import (
     Section,
     UserError,
@@ -76,13 +81,17 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_jax(args.compilation_cache)
-    path = ckpt.find_checkpoint(args.checkpoint)
-    arrays, meta = ckpt.load_checkpoint(path)
-    policy = policy_io.policy_from_checkpoint(arrays, meta)
+    group = seeds.group_of(args.checkpoint)  # a run of several seeds: every seed's newest
+    path = None if group else ckpt.find_checkpoint(args.checkpoint)
+    arrays, meta = ckpt.load_checkpoint(path) if path else (None, None)
     try:
         config = EvalConfig().replace(**overrides(args, "eval"))
     except ValueError as e:
         raise UserError(f"invalid eval config: {e}") from e
+    if group is not None:
+        top = Path(args.checkpoint)
+        return seeds.evaluate_run(top, group, config, overrides(args, "env"), args.json)
+    policy = policy_io.policy_from_checkpoint(arrays, meta)
     env = runs.make_env(meta, **overrides(args, "env"))
     if is_random_target(env):  # held-out target poses instead of the paper's table
         return target_eval.run(

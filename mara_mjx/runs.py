@@ -3,7 +3,8 @@
 A run folder (`python -m mara_mjx.train --out`, default runs/<env>-<timestamp>) holds
 config.json, progress.csv, tb/, checkpoints/ckpt_<update>.npz (`mara_mjx.ppo.checkpoint`
 reads and writes those), and at the end eval.json, summary.json and plots/. This module
-has the folder-level pieces the CLIs share: pruning old checkpoints, JSON written
+has the folder-level pieces the CLIs share: preparing a training run's folder (never
+mixing a new run into an old one), pruning old checkpoints, JSON written
 atomically, a writability probe, the provenance (versions, git commit) stored with every
 checkpoint and report, the guard that keeps other files out of `checkpoints/`, and
 rebuilding a run's env from its saved config.
@@ -14,6 +15,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import shutil
 import signal
 import subprocess
 import sys
@@ -134,6 +136,47 @@ def write_json(path: str | os.PathLike, data: Any) -> Path:
     tmp.write_text(json.dumps(data, indent=2) + "\n")
     os.replace(tmp, path)
     return path
+
+
+def prepare_run_folder(out: Path, checkpoint: Path | None, source_run: Path | None) -> None:
+    """Create a training run's folder `out` (resuming `checkpoint` of the run folder
+    `source_run`, or a new run when None); UserError when it cannot be written or would
+    mix a new run into an existing one."""
+    from mara_mjx.cli import UserError
+
+    try:
+        check_writable(out)
+        check_writable(out / CHECKPOINT_DIR)
+    except OSError as e:
+        raise UserError(f"cannot write to the output folder {str(out)!r}: {e}") from e
+    existing = list_checkpoints(out)
+    if checkpoint is None and existing:
+        raise UserError(
+            f"output folder {str(out)!r} already holds a run; continue it with "
+            f"--resume {out} or choose another --out"
+        )
+    if checkpoint is None and (out / "progress.csv").exists():
+        # a run stopped before its first checkpoint: nothing to resume, so start it over
+        print(f"{out} holds a run stopped before its first checkpoint; starting over")
+        shutil.rmtree(out / "tb", ignore_errors=True)
+    if checkpoint is not None and source_run != out.resolve():
+        newer = [p for p in existing if p.name > checkpoint.name]
+        if newer:
+            raise UserError(f"output folder {str(out)!r} holds newer checkpoints {newer}")
+        source_csv = source_run / "progress.csv"
+        if source_csv.exists() and not (out / "progress.csv").exists():
+            (out / "progress.csv").write_bytes(source_csv.read_bytes())
+
+
+def interrupted_message(out: Path) -> str:
+    """What a training run stopped by Ctrl-C says about resuming it."""
+    found = list_checkpoints(out)
+    if found:
+        return f"interrupted; {found[-1].name} is the newest checkpoint: --resume {out}"
+    return (
+        f"interrupted before the first checkpoint; {out} holds none, so the same command "
+        "(same --out) starts the run over"
+    )
 
 
 def check_writable(folder: str | os.PathLike) -> Path:

@@ -5,6 +5,7 @@
     python -m mara_mjx.train --env MARA --preset cpu             # a laptop CPU: minutes
     python -m mara_mjx.train --env MARA --num_envs 4096 --learning_rate 1e-3 --driver train
     python -m mara_mjx.train --resume runs/MARA-20250101-120000  # continue exactly
+    python -m mara_mjx.train --env MARA --seeds 5     # seeds 0..4 in one program (mara_mjx.seeds)
 
 Every field of PPOConfig, RunConfig, EvalConfig and the env's EnvConfig is a flag
 (`--field` or `--section.field`; see --help). The run folder (--out, default
@@ -50,7 +51,6 @@ import argparse
 import dataclasses
 import datetime
 import json
-import shutil
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -60,7 +60,7 @@ import jax
 from tqdm import tqdm
 
 import mara_mjx
-from mara_mjx import distributed, runs, sharding
+from mara_mjx import distributed, runs, seeds, sharding
 from mara_mjx.cli import (
     Section,
     UserError,
@@ -148,7 +148,7 @@ def resolve(args: argparse.Namespace) -> Plan:
         out = Path(run.out or f"runs/{args.env}-{stamp}")
         return Plan(args.env, given["env"], ppo, run, evaluation, out)
 
-    checkpoint = ckpt.find_checkpoint(args.resume)
+    checkpoint, top, group_run = seeds.find_resume(args.resume, given["run"])
     _, meta = ckpt.load_checkpoint(checkpoint)
     if args.preset is not None:
         raise UserError("--preset cannot be combined with --resume (the run keeps its config)")
@@ -162,11 +162,12 @@ def resolve(args: argparse.Namespace) -> Plan:
                 "start a new run instead (only run.* and eval.* may change)"
             )
     ppo = _build("PPO config of the checkpoint", lambda: PPOConfig.from_dict(meta["ppo"]))
-    run = _build("run config", lambda: RunConfig.from_dict({**meta["run"], **given["run"]}))
+    run = {**meta["run"], **group_run, **given["run"]}
+    run = _build("run config", lambda: RunConfig.from_dict(run))
     evaluation = _build(
         "eval config", lambda: EvalConfig.from_dict({**meta["eval"], **given["eval"]})
     )
-    source = runs.run_dir_of(checkpoint)
+    source = top or runs.run_dir_of(checkpoint)
     out = Path(given["run"]["out"]) if given["run"].get("out") else source
     run = run.replace(out=str(out))
     env_overrides = runs.env_overrides(meta["env_config"])
@@ -181,51 +182,32 @@ def _build(what: str, make: Callable[[], Any]) -> Any:
         raise UserError(f"invalid {what}: {e}") from e
 
 
-def prepare_out(plan: Plan) -> None:
-    """Create the run folder; refuse to mix a new run into an existing one."""
-    try:
-        runs.check_writable(plan.out)
-        runs.check_writable(plan.out / ckpt.CHECKPOINT_DIR)
-    except OSError as e:
-        raise UserError(f"cannot write to the output folder {str(plan.out)!r}: {e}") from e
-    existing = ckpt.list_checkpoints(plan.out)
-    if plan.checkpoint is None and existing:
-        raise UserError(
-            f"output folder {str(plan.out)!r} already holds a run; continue it with "
-            f"--resume {plan.out} or choose another --out"
-        )
-    if plan.checkpoint is None and (plan.out / "progress.csv").exists():
-        # a run stopped before its first checkpoint: nothing to resume, so start it over
-        print(f"{plan.out} holds a run stopped before its first checkpoint; starting over")
-        shutil.rmtree(plan.out / "tb", ignore_errors=True)
-    if plan.checkpoint is not None and plan.source_run != plan.out.resolve():
-        newer = [p for p in existing if p.name > plan.checkpoint.name]
-        if newer:
-            raise UserError(f"output folder {str(plan.out)!r} holds newer checkpoints {newer}")
-        source_csv = plan.source_run / "progress.csv"
-        if source_csv.exists() and not (plan.out / "progress.csv").exists():
-            (plan.out / "progress.csv").write_bytes(source_csv.read_bytes())
-
-
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_jax(args.compilation_cache)
-    distributed.initialize(distributed.launch_from(args))  # several processes: see there
+    launch = distributed.launch_from(args)
+    seeds.check_launch(getattr(args, "run.seeds", 1), args.resume, launch is not None)
+    distributed.initialize(launch)  # several processes: see there
     plan = resolve(args)
+    seeds.check(plan.run.seeds, plan.run.devices, jax.device_count())
     try:
         env = mara_mjx.make(plan.env_name, **plan.env_overrides)
     except ValueError as e:
         raise UserError(f"cannot build env {plan.env_name}: {e}") from e
     try:  # cheap (nothing is compiled yet): device and batch-divisibility errors first
-        trainer = make_train(env, plan.ppo, plan.run.updates_per_call, plan.run.devices)
+        devices = 1 if plan.run.seeds > 1 else plan.run.devices  # seeds: see mara_mjx.seeds
+        trainer = make_train(env, plan.ppo, plan.run.updates_per_call, devices)
     except ValueError as e:
         raise UserError(str(e)) from e
     # the config with its env-dependent fields resolved (PPOConfig.quat_index): saved with
     # every checkpoint, so policies load with the same observation reading
     plan = dataclasses.replace(plan, ppo=trainer.config)
+    if plan.run.seeds > 1:
+        host = seeds.Host(run_meta, finish, STOP, elapsed)
+        return seeds.train(plan, env, trainer, host)
     main_process = distributed.is_main()  # the one that writes the run folder
     if main_process:
-        prepare_out(plan)
+        runs.prepare_run_folder(plan.out, plan.checkpoint, plan.source_run)
 
     progress: dict[str, Any] = {"update": 0, "env_steps": 0, "time_s": 0.0, "milestones": {}}
     state = None
@@ -239,16 +221,7 @@ def main(argv: list[str] | None = None) -> int:
         state = state.replace(env_state=env_state)
         progress = meta["progress"]
 
-    meta = {
-        "env_name": plan.env_name,
-        "env_config": env.config.to_dict(),
-        "observation_size": env.observation_size,
-        "action_size": env.action_size,
-        "ppo": plan.ppo.to_dict(),
-        "run": plan.run.replace(out=str(plan.out)).to_dict(),
-        "eval": plan.eval.to_dict(),
-        **runs.provenance(),
-    }
+    meta = run_meta(plan, env)
     resolved = {**meta, "resume_from": str(plan.checkpoint) if plan.checkpoint else None}
     distributed.check_same_config(resolved, plan.checkpoint)
     if main_process:
@@ -283,7 +256,7 @@ def main(argv: list[str] | None = None) -> int:
                 )
             state, last = train_loop(trainer, state, plan, meta, progress, log, milestones)
     except KeyboardInterrupt:
-        print(f"\n{interrupted_message(plan.out)}", file=sys.stderr)
+        print(f"\n{runs.interrupted_message(plan.out)}", file=sys.stderr)
         return 130
     finally:
         log.close()
@@ -296,21 +269,25 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def run_meta(plan: Plan, env: Any) -> dict[str, Any]:
+    """The resolved config saved in config.json and with every checkpoint."""
+    return {
+        "env_name": plan.env_name,
+        "env_config": env.config.to_dict(),
+        "observation_size": env.observation_size,
+        "action_size": env.action_size,
+        "ppo": plan.ppo.to_dict(),
+        "run": plan.run.replace(out=str(plan.out)).to_dict(),
+        "eval": plan.eval.to_dict(),
+        **runs.provenance(),
+    }
+
+
 STOP = runs.StopRequest(
     "Ctrl-C: stopping after the jitted call in flight (the first one also compiles), then "
     "writing a checkpoint; press Ctrl-C again to stop at once, losing the updates since "
     "the last checkpoint"
 )
-
-
-def interrupted_message(out: Path) -> str:
-    found = ckpt.list_checkpoints(out)
-    if found:
-        return f"interrupted; {found[-1].name} is the newest checkpoint: --resume {out}"
-    return (
-        f"interrupted before the first checkpoint; {out} holds none, so the same command "
-        "(same --out) starts the run over"
-    )
 
 
 def elapsed(progress_time: float, resumed: bool) -> float:
@@ -393,8 +370,9 @@ def finish(
     meta: dict[str, Any],
     last: dict[str, float],
     milestones: logger.Milestones,
+    result: Any = None,
 ) -> None:
-    """Final evaluation, plots and summary.json."""
+    """Final evaluation (unless `result` is given), plots and summary.json."""
     if not last and (plan.out / "progress.csv").exists():  # resumed a finished run
         rows = logger.read_csv(plan.out / "progress.csv")
         last = {k: float(v) for k, v in rows[-1].items()} if rows else {}
@@ -411,8 +389,8 @@ def finish(
     for name, rec in milestones.records.items():
         print(f"time to {name}: {rec['time_s']:.1f} s ({rec['env_steps']} env steps)")
     if plan.run.evaluate:
-        policy = make_policy(state, plan.ppo)
-        result = evaluate(env, policy, plan.eval)
+        if result is None:
+            result = evaluate(env, make_policy(state, plan.ppo), plan.eval)
         orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
         print(format_table(plan.env_name, result, orientation, plan.eval), flush=True)
         report = {

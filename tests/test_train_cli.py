@@ -394,3 +394,118 @@ def test_run_stopped_before_its_first_checkpoint_can_start_over(cli_env, tmp_pat
     assert restarted.returncode == 0, restarted.stderr[-3000:]
     assert "starting over" in restarted.stdout
     assert [int(r["update"]) for r in read_rows(killed / "progress.csv")] == list(range(1, 201))
+
+
+# ------------------------------------------------------------------ several seeds
+# TINY (seed 0) with --seeds 2: seeds 0 and 1 vmapped in one program; seed 0 must match
+# the `trained` run.
+SEEDS = [*TINY, "--seeds", "2", "--tensorboard", "false"]
+
+
+@pytest.fixture(scope="session")
+def seeds_run(cli_env, tmp_path_factory):
+    """(run folder, completed process) of the tiny two-seed run."""
+    out = tmp_path_factory.mktemp("seeds") / "run"
+    proc = run_module(cli_env, "mara_mjx.train", *SEEDS, "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    return out, proc
+
+
+def test_each_seed_of_a_seeds_run_is_the_single_run_of_that_seed(trained, seeds_run):
+    single, _ = trained
+    out, proc = seeds_run
+    assert "Traceback" not in proc.stderr and "det_mm_median" in proc.stderr  # one bar
+    for s in (0, 1):
+        folder = out / f"seed_{s}"
+        config = json.loads((folder / "config.json").read_text())
+        assert config["ppo"]["seed"] == s and config["run"]["seeds"] == 1
+        assert config["run"]["out"] == str(folder)
+        assert [int(r["update"]) for r in read_rows(folder / "progress.csv")] == [1, 2]
+        assert (folder / CKPT1).exists() and (folder / CKPT2).exists()
+        assert len(json.loads((folder / "eval.json").read_text())["episodes"]) == 10
+        assert (folder / "summary.json").exists() and (folder / "plots" / "error.png").exists()
+    expected, _ = ckpt.load_checkpoint(single / CKPT2)
+    seed0, meta = ckpt.load_checkpoint(out / "seed_0" / CKPT2)
+    seed1, _ = ckpt.load_checkpoint(out / "seed_1" / CKPT2)
+    assert meta["progress"]["update"] == 2 and expected.keys() == seed0.keys()
+    for name in expected:
+        np.testing.assert_allclose(seed0[name], expected[name], atol=1e-5, err_msg=name)
+    kernel = "params/params/actor/Dense_0/kernel"
+    assert not np.allclose(seed1[kernel], seed0[kernel], atol=1e-3)  # seeds differ
+
+    report = json.loads((out / "seeds.json").read_text())
+    assert report["seeds"] == [0, 1] and [r["seed"] for r in report["per_seed"]] == [0, 1]
+    per_seed = np.array([r["position_error_mm"] for r in report["per_seed"]])
+    across = report["across_seeds"]["position_error_mm"]
+    np.testing.assert_allclose(across["mean"], per_seed.mean(0))
+    np.testing.assert_allclose(across["worst"], per_seed.max(0))
+    eval0 = json.loads((out / "seed_0" / "eval.json").read_text())["summary"]
+    np.testing.assert_allclose(per_seed[0], eval0["position_error_mm"]["mean"])
+    table = (out / "seeds.md").read_text()
+    assert "| mean |" in table and "| worst |" in table and "| MARA" not in table
+    assert table.split("\n| ")[0] in proc.stdout  # printed at the end
+
+
+def test_evaluate_cli_on_a_seeds_run(seeds_run, cli_env, tmp_path):
+    out, _ = seeds_run
+    report_path = tmp_path / "seeds-eval.json"
+    proc = run_module(cli_env, "mara_mjx.evaluate", str(out), "--json", str(report_path))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    assert "| mean |" in proc.stdout and "| worst |" in proc.stdout
+    report = json.loads(report_path.read_text())
+    during_training = json.loads((out / "seeds.json").read_text())
+    assert report["per_seed"] == during_training["per_seed"]  # same policies, same episodes
+    assert [c["checkpoint"] for c in report["checkpoints"]] == [
+        str(out / f"seed_{s}" / CKPT2) for s in (0, 1)
+    ]
+    assert report_path.with_suffix(".md").read_text().startswith("MARA, 2 seeds")
+
+
+def test_a_seeds_run_resumes_from_its_newest_common_checkpoint(seeds_run, cli_env, tmp_path):
+    out, _ = seeds_run
+    copy = tmp_path / "resumed"
+    shutil.copytree(out, copy)
+    (copy / "seed_1" / CKPT2).unlink()  # seed 0 has update 2, seed 1 only update 1
+    quiet = ["--progress", "false", "--evaluate", "false", "--plots", "false"]
+    proc = run_module(cli_env, "mara_mjx.train", "--resume", str(copy), *quiet)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    for s in (0, 1):
+        original, _ = ckpt.load_checkpoint(out / f"seed_{s}" / CKPT2)
+        resumed, meta = ckpt.load_checkpoint(copy / f"seed_{s}" / CKPT2)
+        assert meta["progress"]["update"] == 2 and meta["ppo"]["seed"] == s
+        for name in original:
+            np.testing.assert_allclose(resumed[name], original[name], atol=1e-6, err_msg=name)
+        rows = read_rows(copy / f"seed_{s}" / "progress.csv")
+        assert [int(r["update"]) for r in rows] == [1, 2]
+
+
+def test_bad_seeds_fail_fast_with_a_clear_message(trained, tmp_path, capsys, compiled):
+    from mara_mjx import seeds
+    from mara_mjx.cli import UserError
+
+    out, _ = trained
+    tiny = [*TINY, "--out", str(tmp_path / "o")]
+    cases = [
+        ([*tiny, "--seeds", "0"], "seeds must be an int >= 1"),
+        ([*tiny, "--seeds", "-3"], "seeds must be an int >= 1"),
+        ([*tiny, "--seeds", "2", "--devices", "2"], "use --devices 0 (all devices) or"),
+        ([*tiny, "--seeds", "2", "--num_processes", "2", "--process_id", "0",
+          "--coordinator", "localhost:1"], "cannot be combined with several processes"),
+        (["--resume", str(out), "--seeds", "2"], "--seeds cannot change when resuming"),
+    ]  # fmt: skip
+    for argv, message in cases:
+        compiled.clear()
+        code = run_cli(train_cli.main, train_cli.PROG, argv)
+        err = capsys.readouterr().err
+        assert code == 2, (argv, err)
+        assert message in err and err.startswith("mara_mjx.train: error:"), (argv, err)
+        assert len(err.strip().splitlines()) == 1 and not compiled, (argv, err, compiled)
+    with pytest.raises(SystemExit) as exit_:
+        train_cli.main([*tiny, "--seeds", "two"])
+    assert exit_.value.code == 2 and "seeds: invalid int value: 'two'" in capsys.readouterr().err
+    with pytest.raises(
+        UserError, match=r"--seeds 3 does not divide over the 2 devices.*multiple of 2"
+    ):
+        seeds.check(3, devices=0, available=2)
+    seeds.check(4, devices=0, available=2)  # 2 seeds per device
+    seeds.check(3, devices=1, available=2)  # every seed on one device

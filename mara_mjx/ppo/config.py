@@ -276,6 +276,11 @@ class RunConfig(_ConfigMixin):
     """At the end, run the accuracy evaluation (EvalConfig) and save eval.json."""
     plots: bool = True
     """At the end, save PNG plots of mean reward, policy entropy and error vs env steps."""
+    seeds: int = 1
+    """Independent runs in one jitted program (vmapped; spread over the devices, each
+    seed's envs on one device): seeds ppo.seed .. ppo.seed + seeds - 1, each written to
+    <out>/seed_<s>/ as a single run writes it, plus a summary across seeds
+    (<out>/seeds.json, seeds.md)."""
 
     def __post_init__(self):
         if not isinstance(self.out, str):
@@ -284,6 +289,11 @@ class RunConfig(_ConfigMixin):
         _check_int("keep_checkpoints", self.keep_checkpoints, minimum=1)
         _check_int("updates_per_call", self.updates_per_call, minimum=1)
         _check_int("devices", self.devices, minimum=0)
+        if not (isinstance(self.seeds, int) and not isinstance(self.seeds, bool)) or self.seeds < 1:
+            raise ValueError(
+                f"seeds must be an int >= 1 (1: one run; N > 1: N seeds in one program), "
+                f"got {self.seeds!r}"
+            )
         for name in ("progress", "tensorboard", "evaluate", "plots"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")

@@ -412,19 +412,25 @@ class SeedTrainer(NamedTuple):
     run: Callable[[RunnerState, int], tuple[RunnerState, dict[str, jax.Array]]]
 
 
-def make_seed_trainer(trainer: Trainer, seeds: tuple[int, ...]) -> SeedTrainer:
+def make_seed_trainer(
+    trainer: Trainer, seeds: tuple[int, ...], devices: int | None = None
+) -> SeedTrainer:
     """Vmap `trainer` over `seeds`. The trainer must use one device for its envs (the
-    devices go to the seeds instead)."""
+    devices go to the seeds instead). `devices`: None spreads the seeds over all devices
+    when their number divides the seed count (else one device); n > 0 over the first n,
+    which must divide it."""
     if trainer.env.mesh is not None:
         raise ValueError(
             "several seeds in one run spread the seeds over the devices, not the envs: "
             "build the trainer with devices=1"
         )
     seeds = tuple(int(s) for s in seeds)
-    n_dev = jax.device_count()
+    n_dev = jax.device_count() if devices is None else sharding.device_count(devices)
+    if devices is not None and len(seeds) % n_dev:
+        raise ValueError(f"{len(seeds)} seeds do not divide over {n_dev} devices")
     sharding_ = None
     if n_dev > 1 and len(seeds) % n_dev == 0:
-        mesh = jax.sharding.Mesh(jax.devices(), ("seeds",))
+        mesh = jax.sharding.Mesh(jax.devices()[:n_dev], ("seeds",))
         sharding_ = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("seeds"))
 
     def init_all() -> RunnerState:
