@@ -21,7 +21,6 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Any, Literal, Protocol, runtime_checkable
 
 import jax
@@ -178,14 +177,14 @@ class EnvConfig:
         check_vector("target_quat", self.target_quat, 4)
         if np.linalg.norm(self.target_quat) < 1e-6:
             raise ValueError("target_quat must be a non-zero quaternion (w, x, y, z)")
-        _check_vector("target_min", self.target_min, 3)
-        _check_vector("target_max", self.target_max, 3)
+        check_vector("target_min", self.target_min, 3)
+        check_vector("target_max", self.target_max, 3)
         if not np.all(np.asarray(self.target_min) < np.asarray(self.target_max)):
             raise ValueError(
                 f"target_min={list(self.target_min)} must be below target_max="
                 f"{list(self.target_max)} on every axis (x, y, z; m, world frame)"
             )
-        if not (_finite(self.target_spread_deg) and 0 <= self.target_spread_deg <= 180):
+        if not (is_finite(self.target_spread_deg) and 0 <= self.target_spread_deg <= 180):
             raise ValueError(
                 f"target_spread_deg={self.target_spread_deg!r} must be in [0, 180] degrees"
             )
@@ -237,26 +236,8 @@ class EnvConfig:
         return out
 
 
-def _finite(x: Any) -> bool:
-    try:
-        return math.isfinite(float(x))
-    except (TypeError, ValueError):
-        return False
-
-
 def _is_int(x: Any) -> bool:
     return isinstance(x, int | np.integer) and not isinstance(x, bool)
-
-
-def _check_vector(name: str, value: Any, size: int) -> None:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"{name} must be {size} numbers, got {value!r}") from e
-    if arr.shape != (size,):
-        raise ValueError(f"{name} must have shape ({size},), got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name}={arr.tolist()} must be finite")
 
 
 @struct.dataclass
