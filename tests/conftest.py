@@ -48,9 +48,14 @@ class Jitted:
 
     def __init__(self, env):
         self.env = env
-        self.reset = jax.jit(max_traces(env.reset, n=1))
+        self._reset = jax.jit(max_traces(env.reset, n=1))
         self.step = jax.jit(max_traces(env.step, n=1))
         self._vstep = None
+
+    def reset(self, key, params=None):
+        """env.reset(key, params), params always passed (None: the env's defaults), so
+        that `reset(key)` and `reset(key, params)` share one trace."""
+        return self._reset(key, self.env.default_params if params is None else params)
 
     @property
     def vstep(self):
