@@ -34,11 +34,13 @@ from mara_mjx.cli import (
     add_checkpoint_argument,
     add_flags,
     configure_jax,
+    env_overrides,
     overrides,
     run_cli,
 )
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.envs.random_target import is_random_target
+from mara_mjx.envs.randomize import RandomizeConfig
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import policy as policy_io
 from mara_mjx.ppo import target_eval
@@ -49,8 +51,9 @@ from mara_mjx.rewards import RewardParams
 PROG = "mara_mjx.evaluate"
 SECTIONS = (
     Section("eval", EvalConfig),
-    Section("env", EnvConfig, exclude=("reward",)),
+    Section("env", EnvConfig, exclude=("reward", "randomization")),
     Section("env", RewardParams),
+    Section("randomization", RandomizeConfig),
 )
 
 
@@ -81,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
         config = EvalConfig().replace(**overrides(args, "eval"))
     except ValueError as e:
         raise UserError(f"invalid eval config: {e}") from e
-    env = runs.make_env(meta, **overrides(args, "env"))
+    env = runs.make_env(meta, **env_overrides(args))
     if is_random_target(env):  # held-out target poses instead of the paper's table
         return target_eval.run(
             checkpoint=path,
