@@ -34,8 +34,9 @@ def _run(module: str, *args: str) -> subprocess.CompletedProcess:
     )
 
 
-def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bool = False):
-    """A run folder with one checkpoint of random (untrained) params; returns its path."""
+def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bool = False, **ppo):
+    """A run folder with one checkpoint of random (untrained) params; returns its path.
+    `ppo`: further PPOConfig fields."""
     env = mara_mjx.make(env_name)
     config = PPOConfig(
         hidden_sizes=(32, 16),
@@ -43,6 +44,7 @@ def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bo
         obs_clip=5.0,
         relative_actions=relative,
         hidden_obs=(13, 14, 15) if relative else (),  # MARAOrient's TCP velocity
+        **ppo,
     )
     network = make_network(config, env.action_size)
     key, init_key, noise_key, stats_key = jax.random.split(jax.random.key(seed), 4)
