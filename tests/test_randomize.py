@@ -144,3 +144,12 @@ def test_env_level_errors(randomized):
     assert cfg.randomization.latency_steps == (0, MAX_LATENCY)
     again = mara_mjx.EnvConfig().replace(**runs.env_overrides(cfg.to_dict()))
     assert dataclasses.asdict(again.randomization) == dataclasses.asdict(cfg.randomization)
+
+
+def test_flags_apply_on_top_of_a_checkpoints_ranges():
+    saved = mara_mjx.EnvConfig(randomize=True, randomization=RandomizeConfig(kp_scale=(0.5, 0.6)))
+    meta = {"env_name": "MARA", "env_config": saved.to_dict(), "observation_size": 12}
+    env = runs.make_env(meta, randomization={"latency_steps": (0, 2)})
+    assert env.config.randomize and env.randomizer.buffer_size == 3
+    assert env.config.randomization.kp_scale == (0.5, 0.6)
+    assert env.config.randomization.latency_steps == (0, 2)
