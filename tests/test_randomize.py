@@ -153,3 +153,31 @@ def test_flags_apply_on_top_of_a_checkpoints_ranges():
     assert env.config.randomize and env.randomizer.buffer_size == 3
     assert env.config.randomization.kp_scale == (0.5, 0.6)
     assert env.config.randomization.latency_steps == (0, 2)
+
+
+def test_physics_draw_reaches_the_mjx_model():
+    from mara_mjx.envs.mara import _shared_arm
+
+    arm = _shared_arm(frictionloss=True)
+    randomizer = rnd.Randomizer(arm, RandomizeConfig())
+    r = rnd.draw(jax.random.key(5), rnd.make_randomization(RandomizeConfig()))
+    d = jax.tree.map(np.asarray, r.draw)
+    m0, m = arm.mjx_model, randomizer.model(arm.mjx_model, r)
+    links, dofs = randomizer.link_ids, randomizer.dof_ids
+    np.testing.assert_allclose(m.body_mass[links], m0.body_mass[links] * d["mass_scale"], 1e-6)
+    # the servos' gravity feed-forward keeps the nominal weights
+    np.testing.assert_allclose(m.body_mass[links] * m.body_gravcomp[links], m0.body_mass[links])
+    np.testing.assert_allclose(
+        m.body_inertia[links], m0.body_inertia[links] * d["inertia_scale"][:, None], 1e-6
+    )
+    np.testing.assert_allclose(m.dof_damping[dofs], d["damping"])
+    np.testing.assert_allclose(m.dof_frictionloss[dofs], d["frictionloss"])
+    np.testing.assert_allclose(m.dof_armature[dofs], 0.1 * d["armature_scale"], 1e-6)
+    kp = 1000.0 * d["kp_scale"]
+    np.testing.assert_allclose(m.actuator_gainprm[randomizer.pos_act, 0], kp, 1e-6)
+    np.testing.assert_allclose(m.actuator_biasprm[randomizer.pos_act, 1], -kp, 1e-6)
+    kv = 200.0 * d["kv_scale"]
+    np.testing.assert_allclose(m.actuator_gainprm[randomizer.vel_act, 0], kv, 1e-6)
+    np.testing.assert_allclose(m.actuator_biasprm[randomizer.vel_act, 2], -kv, 1e-6)
+    # MJX has friction-loss constraint rows only where the C model's friction is > 0
+    assert np.all(arm.mjx_model._impl.dof_hasfrictionloss)
