@@ -136,6 +136,8 @@ def test_env_level_errors(randomized):
         mara_mjx.make("MARA", randomize=1)
     with pytest.raises(ValueError, match="exceeds the action buffer"):
         randomized.env.make_params(randomization=OFF.replace(latency_steps=(0, 4)))
+    with pytest.raises(ValueError, match="need an env built with randomize=True"):
+        mara_mjx.make("MARA").make_params(randomization=OFF)
     with pytest.raises(ValueError, match="randomize is fixed when the env is built"):
         randomized.env.make_params(randomize=False)
     # a partial dict (the CLI's flags, a saved config) applies on top of the env's ranges

@@ -25,6 +25,9 @@ step's observation and reward are those of the colliding pose, then the arm is p
 back at the reset pose and the episode goes on; only the Collision tasks are
 penalised.
 
+Domain randomisation (`randomize=True`, envs/randomize.py): per-episode physics, joint
+zero offsets, q noise and action latency; the observation is then the encoders' reading.
+
 Usage:
     env = mara_mjx.make("MARACollisionOrient")
     state = jax.jit(env.reset)(key)
@@ -158,6 +161,11 @@ class MaraEnv:
         cfg = self.config.replace(**overrides) if overrides else self.config
         if overrides and cfg.check_target and ({"target_pos", "target_quat"} & set(overrides)):
             self._check_target(cfg)
+        if "randomization" in overrides and self.randomizer is None:
+            raise ValueError(
+                "randomization ranges need an env built with randomize=True "
+                "(make(name, randomize=True))"
+            )
         if "randomize" in overrides and cfg.randomize != self.config.randomize:
             raise ValueError(
                 "randomize is fixed when the env is built (it changes the state's structure);"
