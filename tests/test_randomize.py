@@ -183,3 +183,18 @@ def test_physics_draw_reaches_the_mjx_model():
     np.testing.assert_allclose(m.actuator_biasprm[randomizer.vel_act, 2], -kv, 1e-6)
     # MJX has friction-loss constraint rows only where the C model's friction is > 0
     assert np.all(arm.mjx_model._impl.dof_hasfrictionloss)
+
+
+def test_train_cli_flags_reach_the_env_config():
+    from mara_mjx import train
+
+    args = train.build_parser().parse_args(
+        ["--env", "MARA", "--driver", "real", "--randomize", "--kp_scale", "0.7", "1.3",
+         "--randomization.latency_steps", "0", "2"]
+    )  # fmt: skip
+    plan = train.resolve(args)
+    env = mara_mjx.make(plan.env_name, **plan.env_overrides)
+    assert env.config.driver == "real" and env.config.randomize
+    assert env.config.randomization.kp_scale == (0.7, 1.3)
+    assert env.config.randomization.latency_steps == (0, 2)
+    assert env.config.randomization.mass_scale == RandomizeConfig().mass_scale
