@@ -18,8 +18,8 @@ inertias, damping, friction, armature, servo gains, zero offsets, q noise, laten
 0-1 steps) from the held-out seed --eval_seed, reset noise 0.02 rad, run for
 --eval_steps control steps (300 = 15 s); the error is the true TCP error at the last
 step, per axis (mm). At 0.3 and 0.5 rad/s: mean, median, p95 and worst per axis,
-fractions within 5 mm and 1 mm on every axis, the fraction of episodes with a
-collision, and the five worst draws with their parameters. Sweeps at --sweep_velocity:
+fractions within 5 mm and 1 mm on every axis, the fractions of episodes with a
+collision and with a physics blow-up, and the five worst draws with their parameters. Sweeps at --sweep_velocity:
 the default draws with the latency fixed at 0, 1, 2, 3 steps, and with the zero
 offsets' half-width at 0, 0.5, 1, 2, 4 mrad.
 
@@ -115,13 +115,14 @@ def make_evaluator(env_name: str, draws: int, steps: int, config, tiny: bool):
 
         def body(s, _):
             s = jax.vmap(env.step)(s, policy(s.obs))
-            return s, s.metrics["collided"]
+            return s, (s.metrics["collided"], s.metrics["physics_blowup"])
 
-        s, collided = jax.lax.scan(body, s, None, length=steps)
+        s, (collided, blowup) = jax.lax.scan(body, s, None, length=steps)
         r = s.params.randomization
         return {
             "error_mm": 1000.0 * s.metrics["position_error"],
             "collided": jnp.any(collided > 0, axis=0),
+            "blowup": jnp.any(blowup > 0, axis=0),
             "draw": r.draw,
         }
 
@@ -141,6 +142,7 @@ def summarise(out: dict, worst: int = 5) -> dict:
         "within_5mm": float(np.mean(worst_axis <= 5.0)),
         "within_1mm": float(np.mean(worst_axis <= 1.0)),
         "collision_rate": float(np.mean(np.asarray(out["collided"]))),
+        "physics_blowup_rate": float(np.mean(np.asarray(out["blowup"]))),
         "worst_cases": [
             {
                 "error_mm": err[i].round(3).tolist(),
