@@ -19,9 +19,9 @@ inertias, damping, friction, armature, servo gains, zero offsets, q noise, laten
 --eval_steps control steps (300 = 15 s); the error is the true TCP error at the last
 step, per axis (mm). At 0.3 and 0.5 rad/s: mean, median, p95 and worst per axis,
 fractions within 5 mm and 1 mm on every axis, the fractions of episodes with a
-collision and with a physics blow-up, and the five worst draws with their parameters. Sweeps at --sweep_velocity:
-the default draws with the latency fixed at 0, 1, 2, 3 steps, and with the zero
-offsets' half-width at 0, 0.5, 1, 2, 4 mrad.
+collision and with a physics blow-up, and the five worst draws with their parameters.
+Sweeps at --sweep_velocity: the default draws with the latency fixed at 0, 1, 2, 3
+steps, and with the zero offsets' half-width at 0, 0.5, 1, 2, 4 mrad.
 
 Writes OUT/sim2real.json (everything, with timings and versions) and OUT/sim2real.md
 (the tables), after every phase, so a run cut short keeps what it measured.
