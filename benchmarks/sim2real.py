@@ -175,8 +175,8 @@ def markdown(report: dict) -> str:
         "last step (mm).",
         "",
         "| recipe | trained (env steps, s) | velocity | mean x, y, z | p95 x, y, z | worst "
-        "x, y, z | within 5 / 1 mm | collisions |",
-        "|---|---|---|---|---|---|---|---|",
+        "x, y, z | within 5 / 1 mm | collisions | blow-ups |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for key, rec in report["recipes"].items():
         for v, s in rec.get("eval", {}).items():
@@ -184,7 +184,7 @@ def markdown(report: dict) -> str:
                 f"| {key}: {rec['name']} | {rec['env_steps']:.3g}, {rec['train_s']:.0f} s | {v} "
                 f"| {_axes(s['mean_mm'])} | {_axes(s['p95_mm'])} | {_axes(s['worst_mm'])} | "
                 f"{100 * s['within_5mm']:.1f}% / {100 * s['within_1mm']:.1f}% | "
-                f"{100 * s['collision_rate']:.1f}% |"
+                f"{100 * s['collision_rate']:.1f}% | {100 * s['physics_blowup_rate']:.1f}% |"
             )
     for sweep, label, unit in (("latency", "latency", "steps"), ("offset", "offset", "mrad")):
         keys = [k for k, r in report["recipes"].items() if sweep in r]
