@@ -7,7 +7,8 @@ collided, joints at their limits) and, for each settled configuration, where a l
 descent from it ends: a branch with the pose exact, or stuck at a joint limit with the
 orientation off.
 
-    python benchmarks/orientation_ik.py [--starts 400] [--out benchmarks/results/orientation_ik.json]
+    python benchmarks/orientation_ik.py [--starts 400] \
+        [--out benchmarks/results/orientation_ik.json]
 """
 
 from __future__ import annotations
@@ -111,7 +112,8 @@ def main():
     pos_ok = np.array([m["position_error_mm"] < 0.5 for m in stuck])
     print(
         f"{len(stuck)} starts end elsewhere; of them {pos_ok.sum()} with position < 0.5 mm, "
-        f"their orientation error: median {np.median(angles[pos_ok]) if pos_ok.any() else 0:.1f} deg"
+        "their orientation error: median "
+        f"{np.median(angles[pos_ok]) if pos_ok.any() else 0:.1f} deg"
     )
     settled = {}
     for name, q in SETTLED.items():
@@ -119,11 +121,13 @@ def main():
         q_end, there = descend(model, data, np.array(q))
         settled[name] = {"at": here, "local_descent_ends": there}
         print(
-            f"{name}: at q: pos {here['position_error_mm']:.1f} mm, angle {here['angle_deg']:.1f} deg "
+            f"{name}: at q: pos {here['position_error_mm']:.1f} mm, "
+            f"angle {here['angle_deg']:.1f} deg "
             f"{here['rotvec_deg']}, collided {here['collided']}, limits {here['joints_at_limit']}"
         )
         print(
-            f"    local descent -> pos {there['position_error_mm']:.2f} mm, angle {there['angle_deg']:.2f} deg, "
+            f"    local descent -> pos {there['position_error_mm']:.2f} mm, "
+            f"angle {there['angle_deg']:.2f} deg, "
             f"q {there['q']}, collided {there['collided']}, limits {there['joints_at_limit']}"
         )
     if args.out:

@@ -54,7 +54,8 @@ def main(specs: list[str]) -> None:
         "orientation curriculum (train_reward) does not change MARA / MARACollision (their",
         "reward has no orientation factor), so their rows come from the run before it.",
         "",
-        "| task | PPO overrides of the run | reached | position mean (mm) | position worst seed (mm)"
+        "| task | PPO overrides of the run | reached | position mean (mm)"
+        " | position worst seed (mm)"
         " | paper (mm) | orientation mean (deg) | orientation worst seed (deg) | paper (deg) |"
         " hold orientation worst (deg) | collisions / episode (hold, worst seed) |"
         " 1 mm at (s, median over seeds) |",

@@ -12,6 +12,7 @@ Public API:
     MaraEnv                   the MARA tasks' implementation of it
     BatchedEnv(env, n)        vmap + auto-reset + episode statistics
     EnvConfig / EnvParams / EnvState / RewardParams
+    RandomizeConfig           domain randomisation ranges (make(name, randomize=True))
 
 Importing mara_mjx adds one CPU-only flag to XLA_FLAGS (mara_mjx/_xla.py): batched env
 steps run about 50x faster on the CPU with XLA's older CPU fusion emitters.
@@ -32,6 +33,7 @@ from mara_mjx.envs import (
     register,
     registered,
 )
+from mara_mjx.envs.randomize import RandomizeConfig
 from mara_mjx.rewards import RewardParams
 
 __all__ = [
@@ -43,6 +45,7 @@ __all__ = [
     "EnvState",
     "EnvStateLike",
     "MaraEnv",
+    "RandomizeConfig",
     "RewardParams",
     "make",
     "register",

@@ -176,3 +176,14 @@ def run_cli(main: typing.Callable[[list[str] | None], int], prog: str, argv=None
     except (UserError, CheckpointError) as e:
         print(f"{prog}: error: {e}", file=sys.stderr)
         return 2
+
+
+def env_overrides(namespace: argparse.Namespace) -> dict[str, Any]:
+    """The EnvConfig overrides of the flags: the `env` section's, plus the `randomization`
+    section's fields as `randomization={field: value}` (applied on top of the env's own
+    ranges by `EnvConfig.replace`)."""
+    flags = overrides(namespace, "env")
+    randomization = overrides(namespace, "randomization")
+    if randomization:
+        flags["randomization"] = randomization
+    return flags

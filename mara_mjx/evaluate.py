@@ -40,11 +40,13 @@ from mara_mjx.cli import (
     add_checkpoint_argument,
     add_flags,
     configure_jax,
+    env_overrides,
     overrides,
     run_cli,
 )
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.envs.random_target import is_random_target
+from mara_mjx.envs.randomize import RandomizeConfig
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import policy as policy_io
 from mara_mjx.ppo import target_eval
@@ -55,8 +57,9 @@ from mara_mjx.rewards import RewardParams
 PROG = "mara_mjx.evaluate"
 SECTIONS = (
     Section("eval", EvalConfig),
-    Section("env", EnvConfig, exclude=("reward",)),
+    Section("env", EnvConfig, exclude=("reward", "randomization")),
     Section("env", RewardParams),
+    Section("randomization", RandomizeConfig),
 )
 
 
@@ -90,9 +93,9 @@ def main(argv: list[str] | None = None) -> int:
         raise UserError(f"invalid eval config: {e}") from e
     if group is not None:
         top = Path(args.checkpoint)
-        return seeds.evaluate_run(top, group, config, overrides(args, "env"), args.json)
+        return seeds.evaluate_run(top, group, config, env_overrides(args), args.json)
     policy = policy_io.policy_from_checkpoint(arrays, meta)
-    env = runs.make_env(meta, **overrides(args, "env"))
+    env = runs.make_env(meta, **env_overrides(args))
     if is_random_target(env):  # held-out target poses instead of the paper's table
         return target_eval.run(
             checkpoint=path,

@@ -1,7 +1,9 @@
-"""Export a trained policy for use outside JAX: one .npz file, a pure-numpy policy.
+"""Export a trained policy for use outside JAX: one .npz file, a pure-numpy policy, or
+an ONNX model (the suffix chooses).
 
     python -m mara_mjx.export runs/MARA-.../ OUT.npz        # newest checkpoint of a run
     python -m mara_mjx.export runs/MARA-.../checkpoints/ckpt_00000100.npz OUT.npz
+    python -m mara_mjx.export runs/MARA-.../ OUT.onnx       # ONNX (pip install ".[onnx]")
 
     from mara_mjx.export import load_exported
     policy = load_exported("OUT.npz")
@@ -15,7 +17,8 @@ run used `canonical_quat` (quat_index >= 0 in the meta), z[..., hidden_obs] = 0,
 then the actor's tanh MLP (linear output layer), plus obs[..., :6] (the current joint
 positions) when the run used `relative_actions`. The action is an absolute joint target
 (rad) for motor1..motor6; the env clips it to the joint limits (`policy(obs, clip=True)`
-does the same here).
+does the same here). The .onnx file computes the same graph (`mara_mjx/onnx_policy.py`):
+input "obs" (N, obs_size) float32, outputs "action" and "action_clipped" (N, 6) rad.
 
 File layout (`np.load(path)`; no pickles):
     layer_<i>/kernel   (in, out) float32, i = 0 .. len(hidden_sizes)   y = x @ kernel + bias
@@ -46,6 +49,7 @@ import numpy as np
 from mara_mjx.npzmeta import META_KEY, NPZ_ERRORS, read_npz_with_meta
 
 FORMAT = "mara_mjx.export/1"
+SUFFIXES = (".npz", ".onnx")
 OBS_VAR_EPS = 1e-8  # mara_mjx.ppo.networks.normalize
 PROG = "python -m mara_mjx.export"
 
@@ -56,8 +60,9 @@ class ExportError(ValueError):
 
 def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) -> Path:
     """Write the deterministic policy of `checkpoint` (a checkpoint file, or a run folder:
-    its newest checkpoint) to `out_path` (.npz), atomically. Raises ExportError (or
-    mara_mjx.ppo.CheckpointError, also a ValueError) with what is wrong."""
+    its newest checkpoint) to `out_path`, atomically: .npz (numpy) or .onnx (an ONNX
+    model, needs the `onnx` package). Raises ExportError (or mara_mjx.ppo.CheckpointError,
+    also a ValueError) with what is wrong."""
     import mara_mjx
     from mara_mjx import runs
     from mara_mjx.envs.arm import JOINTS
@@ -65,8 +70,16 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
     from mara_mjx.ppo import policy as policy_io
 
     out_path = Path(out_path)
-    if out_path.suffix != ".npz":
-        raise ExportError(f"output {str(out_path)!r} must end in .npz")
+    if out_path.suffix not in SUFFIXES:
+        raise ExportError(f"output {str(out_path)!r} must end in .npz or .onnx")
+    if out_path.suffix == ".onnx":
+        try:
+            import onnx  # noqa: F401
+        except ImportError as e:
+            raise ExportError(
+                "writing .onnx needs the onnx package: pip install 'mara_mjx[onnx]' "
+                "(or pip install onnx)"
+            ) from e
     try:
         runs.check_not_checkpoint(out_path, "export output")
     except ValueError as e:
@@ -130,16 +143,22 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
         },
     }
     out[META_KEY] = np.array(json.dumps(export_meta))
-    _write_atomic(out_path, out)
+    if out_path.suffix == ".onnx":
+        from mara_mjx import onnx_policy
+
+        _write_atomic(out_path, lambda f: onnx_policy.save(_from_arrays(out, export_meta), f))
+    else:
+        _write_atomic(out_path, lambda f: np.savez(f, **out))
     return out_path
 
 
-def _write_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
+def _write_atomic(path: Path, write: Any) -> None:
+    """write(binary file) into a temporary file, then renamed to `path`."""
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with open(tmp, "wb") as f:
-            np.savez(f, **arrays)
+            write(f)
         os.replace(tmp, path)
     except OSError as e:
         raise ExportError(f"cannot write {str(path)!r}: {e}") from e
@@ -239,18 +258,22 @@ def load_exported(path: str | os.PathLike) -> NumpyPolicy:
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         found = meta.get("format") if isinstance(meta, dict) else None
         raise ExportError(f"{str(path)!r} has format {found!r}, expected {FORMAT!r}")
+    return _from_arrays(arrays, meta, str(path))
+
+
+def _from_arrays(arrays: Any, meta: dict[str, Any], where: str = "the export") -> NumpyPolicy:
     n_layers = len(meta["hidden_sizes"]) + 1
     try:
         kernels = tuple(arrays[f"layer_{i}/kernel"] for i in range(n_layers))
         biases = tuple(arrays[f"layer_{i}/bias"] for i in range(n_layers))
         stats = (arrays["obs_mean"], arrays["obs_var"]) if meta["normalize_obs"] else (None, None)
     except KeyError as e:
-        raise ExportError(f"{str(path)!r} lacks the array {e}") from e
+        raise ExportError(f"{where!r} lacks the array {e}") from e
     if (
         kernels[0].shape[0] != meta["observation_size"]
         or kernels[-1].shape[1] != (meta["action_size"])
     ):
-        raise ExportError(f"{str(path)!r}: layer shapes do not match the observation/action sizes")
+        raise ExportError(f"{where!r}: layer shapes do not match the observation/action sizes")
     return NumpyPolicy(kernels, biases, stats[0], stats[1], meta)
 
 
@@ -259,10 +282,14 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     parser.add_argument("checkpoint", help="checkpoint .npz file, or a run folder (its newest)")
-    parser.add_argument("out", help="output .npz file")
+    parser.add_argument("out", help="output file: .npz (numpy) or .onnx (ONNX)")
     args = parser.parse_args(argv)
     try:
         out = export_policy(args.checkpoint, args.out)
+        if out.suffix == ".onnx":
+            print(f"wrote {out}: ONNX (opset 17), input obs (N, obs_size) float32, outputs "
+                  "action and action_clipped (N, 6) rad")  # fmt: skip
+            return 0
         policy = load_exported(out)
     except ExportError as e:
         raise UserError(str(e)) from e

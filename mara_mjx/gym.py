@@ -18,7 +18,8 @@ episode) `mara_mjx/MARARandomTarget-v0`, `mara_mjx/MARAOrientRandomTarget-v0`,
 `mara_mjx/MARACollisionRandomTarget-v0`, `mara_mjx/MARACollisionOrientRandomTarget-v0`;
 Keyword arguments are the env options of `mara_mjx.make` (fields of `mara_mjx.EnvConfig`:
 driver, max_episode_steps, velocity, target_pos, target_quat, reset_noise, alpha, ...,
-done; target_min, target_max, target_spread_deg, ... for the random-target tasks), and one per name you `mara_mjx.register`.
+done; target_min, target_max, target_spread_deg, ... for the random-target tasks), and one
+per name you `mara_mjx.register`.
 
 Horizon: the ids are registered without a gymnasium `TimeLimit`; truncation comes from
 the env's own `max_episode_steps` (1024 by default). `MaraGymEnv(task,

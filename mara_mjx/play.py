@@ -44,10 +44,12 @@ from mara_mjx.cli import (
     add_checkpoint_argument,
     add_flags,
     configure_jax,
+    env_overrides,
     overrides,
     run_cli,
 )
 from mara_mjx.envs.base import EnvConfig
+from mara_mjx.envs.randomize import RandomizeConfig
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import policy as policy_io
 from mara_mjx.ppo.config import EvalConfig
@@ -64,7 +66,8 @@ VIDEO_FORMATS = (".mp4", ".gif")
 SECTIONS = (
     Section("eval", EvalConfig),
     # The reset noise is the eval section's --noise; rewards do not change what is shown.
-    Section("env", EnvConfig, exclude=("reward", "reset_noise")),
+    Section("env", EnvConfig, exclude=("reward", "reset_noise", "randomization")),
+    Section("randomization", RandomizeConfig),
 )
 
 
@@ -168,7 +171,7 @@ def check_video_args(args: argparse.Namespace) -> Path | None:
 
 def env_flags(args: argparse.Namespace) -> dict[str, Any]:
     """The command line's env overrides of the checkpoint's env config; -v implies -r."""
-    flags = overrides(args, "env")
+    flags = env_overrides(args)
     if "velocity" in flags:
         if flags.get("driver", "real") != "real":
             raise UserError(

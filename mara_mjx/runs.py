@@ -117,8 +117,12 @@ def make_env(meta: dict[str, Any], **overrides: Any):
         raise CheckpointError(
             f"checkpoint env {name!r} is not registered; registered: {registered()}"
         )
+    saved = env_overrides(meta["env_config"])
+    if isinstance(overrides.get("randomization"), dict):  # some fields: on top of the saved
+        overrides = {**overrides, "randomization": {
+            **saved.get("randomization", {}), **overrides["randomization"]}}  # fmt: skip
     try:
-        env = make(name, **{**env_overrides(meta["env_config"]), **overrides})
+        env = make(name, **{**saved, **overrides})
     except ValueError as e:
         raise CheckpointError(f"cannot build env {name}: {e}") from e
     if env.observation_size != meta["observation_size"]:

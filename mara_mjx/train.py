@@ -67,9 +67,11 @@ from mara_mjx.cli import (
     add_cache_argument,
     add_flags,
     configure_jax,
+    env_overrides,
     overrides,
 )
 from mara_mjx.envs.base import EnvConfig
+from mara_mjx.envs.randomize import RandomizeConfig
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import logger
 from mara_mjx.ppo.config import PRESETS, EvalConfig, PPOConfig, RunConfig
@@ -83,8 +85,9 @@ SECTIONS = (
     Section("ppo", PPOConfig, defaults=PRESETS["default"]),
     Section("run", RunConfig),
     Section("eval", EvalConfig),
-    Section("env", EnvConfig, exclude=("reward",)),
+    Section("env", EnvConfig, exclude=("reward", "randomization")),
     Section("env", RewardParams),
+    Section("randomization", RandomizeConfig),
 )
 
 
@@ -146,7 +149,7 @@ def resolve(args: argparse.Namespace) -> Plan:
         evaluation = _build("eval config", lambda: EvalConfig().replace(**given["eval"]))
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
         out = Path(run.out or f"runs/{args.env}-{stamp}")
-        return Plan(args.env, given["env"], ppo, run, evaluation, out)
+        return Plan(args.env, env_overrides(args), ppo, run, evaluation, out)
 
     checkpoint, top, group_run = seeds.find_resume(args.resume, given["run"])
     _, meta = ckpt.load_checkpoint(checkpoint)
@@ -154,7 +157,7 @@ def resolve(args: argparse.Namespace) -> Plan:
         raise UserError("--preset cannot be combined with --resume (the run keeps its config)")
     if args.env is not None and args.env != meta["env_name"]:
         raise UserError(f"--env {args.env} differs from the checkpoint's env {meta['env_name']}")
-    for section in ("ppo", "env"):
+    for section in ("ppo", "env", "randomization"):
         if given[section]:
             names = ", ".join(f"{section}.{k}" for k in given[section])
             raise UserError(
@@ -170,8 +173,8 @@ def resolve(args: argparse.Namespace) -> Plan:
     source = top or runs.run_dir_of(checkpoint)
     out = Path(given["run"]["out"]) if given["run"].get("out") else source
     run = run.replace(out=str(out))
-    env_overrides = runs.env_overrides(meta["env_config"])
-    return Plan(meta["env_name"], env_overrides, ppo, run, evaluation, out, checkpoint, source)
+    env_flags = runs.env_overrides(meta["env_config"])
+    return Plan(meta["env_name"], env_flags, ppo, run, evaluation, out, checkpoint, source)
 
 
 def _build(what: str, make: Callable[[], Any]) -> Any:

@@ -35,8 +35,9 @@ def _run(module: str, *args: str) -> subprocess.CompletedProcess:
     )
 
 
-def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bool = False):
-    """A run folder with one checkpoint of random (untrained) params; returns its path."""
+def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bool = False, **ppo):
+    """A run folder with one checkpoint of random (untrained) params; returns its path.
+    `ppo`: further PPOConfig fields."""
     env = mara_mjx.make(env_name)
     config = PPOConfig(
         hidden_sizes=(32, 16),
@@ -45,6 +46,7 @@ def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bo
         relative_actions=relative,
         hidden_obs=(13, 14, 15) if relative else (),  # MARAOrient's TCP velocity
         canonical_quat=relative,  # MARAOrient: the export must flip quat_err's sign too
+        **ppo,
     )
     config = for_env(config, env)
     network = make_network(config, env.action_size)

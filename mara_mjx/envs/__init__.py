@@ -1,6 +1,6 @@
 """Environments: the `Env` contract (base.py), the MARA arm on MJX (arm.py), the four
-tasks (mara.py) and their random-target variants (random_target.py, targets.py), the
-registry and the batching/auto-reset layer (batched.py)."""
+tasks (mara.py) and their random-target variants (random_target.py, targets.py), domain
+randomisation (randomize.py), the registry and the batching/auto-reset layer (batched.py)."""
 
 from mara_mjx.envs.base import Env, EnvConfig, EnvParams, EnvState, EnvStateLike
 from mara_mjx.envs.batched import BatchedEnv, BatchedState

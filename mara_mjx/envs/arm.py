@@ -167,12 +167,15 @@ class Arm:
         command: jax.Array,
         velocity: jax.Array,
         n_substeps: int,
+        model: mjx.Model | None = None,
     ) -> tuple[jax.Array, jax.Array, jax.Array, ArmPose]:
         """Servo toward `command` for n_substeps physics steps. Returns q', qvel', ref', pose.
 
         The pose's `collided` is true if any substep started in penetration or the final
-        pose penetrates.
+        pose penetrates. `model`: the dynamics model (None: the nominal one; a randomised
+        env passes its per-env masses, damping, gains, ...).
         """
+        model = self.mjx_model if model is None else model
         max_move = velocity * self.timestep
 
         def substep(carry, _):
@@ -180,7 +183,7 @@ class Arm:
             move = jnp.clip(command - ref, -max_move, max_move)
             ref = ref + move
             ctrl = jnp.concatenate([ref, move / self.timestep])  # [ref, ref_vel]
-            d = mjx.step(self.mjx_model, d.replace(ctrl=ctrl))
+            d = mjx.step(model, d.replace(ctrl=ctrl))
             hit = hit | self._penetrating(d)
             return (d, ref, hit), None
 

@@ -29,6 +29,7 @@ from flax import struct
 
 from mara_mjx.config import check_vector, is_finite
 from mara_mjx.envs.arm import MAX_JOINT_SPEED
+from mara_mjx.envs.randomize import RandomizeConfig
 from mara_mjx.rewards import RewardParams
 
 
@@ -154,6 +155,13 @@ class EnvConfig:
     target_seed: int = 0
     """Random-target tasks: seed of the pose table (evaluation poses come from a
     different, independent stream)."""
+    randomize: bool = False
+    """Domain randomisation: draw masses, inertias, damping, friction, armature, servo
+    gains (real driver), joint zero offsets, observation noise and action latency (both
+    drivers) per environment at every reset, within the `randomization` ranges
+    (mara_mjx/envs/randomize.py). False: the nominal model, exactly."""
+    randomization: RandomizeConfig = dataclasses.field(default_factory=RandomizeConfig)
+    """The ranges of the domain randomisation (RandomizeConfig), used when randomize."""
 
     def __post_init__(self):
         if self.driver not in DRIVERS:
@@ -195,6 +203,13 @@ class EnvConfig:
             )
         if not (_is_int(seed) and 0 <= seed < 2**63):
             raise ValueError(f"target_seed={seed!r} must be an int in [0, 2**63)")
+        if not isinstance(self.randomize, bool):
+            raise ValueError(f"randomize={self.randomize!r} must be true or false")
+        if not isinstance(self.randomization, RandomizeConfig):
+            raise ValueError(
+                "randomization must be a mara_mjx.envs.randomize.RandomizeConfig, got "
+                f"{type(self.randomization).__name__}"
+            )
         if not isinstance(self.reward, RewardParams):
             raise ValueError(
                 f"reward must be a mara_mjx.rewards.RewardParams, got {type(self.reward).__name__}"
@@ -223,6 +238,12 @@ class EnvConfig:
         if reward_overrides:
             base = overrides.get("reward", self.reward)
             overrides["reward"] = base.replace(**{k: float(v) for k, v in reward_overrides.items()})
+        if isinstance(overrides.get("randomization"), dict):  # some fields, or to_dict()'s
+            fields = {
+                k: tuple(v) if isinstance(v, list) else v
+                for k, v in overrides["randomization"].items()
+            }
+            overrides["randomization"] = self.randomization.replace(**fields)
         for name in ("target_pos", "target_quat", "target_min", "target_max"):
             if name in overrides:
                 overrides[name] = tuple(float(x) for x in np.asarray(overrides[name]).ravel())
@@ -249,6 +270,7 @@ class EnvParams:
     velocity: jax.Array  # () rad/s, real driver servo speed
     reset_noise: jax.Array  # () rad, half-width of the uniform reset perturbation
     reward: RewardParams
+    randomization: Any  # envs.randomize.Randomization, or None (no randomisation)
 
 
 @struct.dataclass
@@ -266,6 +288,9 @@ class EnvState:
     key: jax.Array  # PRNG key of this environment
     params: EnvParams
     metrics: dict[str, jax.Array]
+    action_history: Any = None
+    """(buffer, 6) rad: the last commands, newest first (randomised latency only; else
+    None)."""
 
     @property
     def done(self) -> jax.Array:

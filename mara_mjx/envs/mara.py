@@ -25,6 +25,9 @@ step's observation and reward are those of the colliding pose, then the arm is p
 back at the reset pose and the episode goes on; only the Collision tasks are
 penalised.
 
+Domain randomisation (`randomize=True`, envs/randomize.py): per-episode physics, joint
+zero offsets, q noise and action latency; the observation is then the encoders' reading.
+
 Usage:
     env = mara_mjx.make("MARACollisionOrient")
     state = jax.jit(env.reset)(key)
@@ -43,7 +46,8 @@ import numpy as np
 
 from mara_mjx import rewards
 from mara_mjx.envs import ik
-from mara_mjx.envs.arm import Arm, ArmPose
+from mara_mjx.envs import randomize as rnd
+from mara_mjx.envs.arm import Arm, ArmPose, load_model
 from mara_mjx.envs.base import METRIC_KEYS, EnvConfig, EnvParams, EnvState
 from mara_mjx.envs.geometry import quat_conj, quat_mul, quat_to_euler
 
@@ -70,15 +74,23 @@ TASKS = {
     ),
 }
 
-_ARM: Arm | None = None
+_ARMS: dict[bool, Arm] = {}
 
 
-def _shared_arm() -> Arm:
-    """The MJX model is the same for every task: build it once per process."""
-    global _ARM
-    if _ARM is None:
-        _ARM = Arm()
-    return _ARM
+def _shared_arm(frictionloss: bool = False) -> Arm:
+    """The MJX model is the same for every task: build it once per process.
+
+    `frictionloss`: a model whose joints have MJX friction-loss constraint rows (MJX
+    allocates them only for joints with a friction loss > 0 in the C model), so that the
+    randomised real driver can set per-env friction; its nominal friction is 1e-9 N m,
+    replaced by every draw."""
+    if frictionloss not in _ARMS:
+        mj_model = None
+        if frictionloss:
+            mj_model = load_model()
+            mj_model.dof_frictionloss[:] = 1e-9
+        _ARMS[frictionloss] = Arm(mj_model)
+    return _ARMS[frictionloss]
 
 
 class MaraEnv:
@@ -90,8 +102,10 @@ class MaraEnv:
     def __init__(self, task: Task, config: EnvConfig | None = None):
         self.task = task
         self.config = config if config is not None else default_config(task)
-        self.arm = _shared_arm()
         cfg = self.config
+        self.arm = _shared_arm(frictionloss=cfg.randomize and cfg.driver == "real")
+        # None: no randomisation, every step exactly the nominal env's
+        self.randomizer = rnd.Randomizer(self.arm, cfg.randomization) if cfg.randomize else None
         if cfg.driver == "real":
             n = cfg.control_dt / self.arm.timestep
             if abs(n - round(n)) > 1e-6 or round(n) < 1:
@@ -142,17 +156,33 @@ class MaraEnv:
     def make_params(self, **overrides) -> EnvParams:
         """Params pytree from this env's config, with host-side validated overrides
         (target_pos, target_quat, velocity, reset_noise, alpha, beta, gamma, delta, eta,
-        done)."""
+        done, and `randomization` ranges of a randomised env: a RandomizeConfig whose
+        latency fits the env's action buffer)."""
         cfg = self.config.replace(**overrides) if overrides else self.config
         if overrides and cfg.check_target and ({"target_pos", "target_quat"} & set(overrides)):
             self._check_target(cfg)
+        if "randomization" in overrides and self.randomizer is None:
+            raise ValueError(
+                "randomization ranges need an env built with randomize=True "
+                "(make(name, randomize=True))"
+            )
+        if "randomize" in overrides and cfg.randomize != self.config.randomize:
+            raise ValueError(
+                "randomize is fixed when the env is built (it changes the state's structure);"
+                " make the env with randomize=True instead"
+            )
         f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+        randomization = None
+        if self.randomizer is not None:
+            rnd.check_params(cfg.randomization, self.config.randomization)
+            randomization = rnd.make_randomization(cfg.randomization)
         return EnvParams(
             target_pos=f32(cfg.target_pos),
             target_quat=f32(_unit(cfg.target_quat)),
             velocity=f32(cfg.velocity),
             reset_noise=f32(cfg.reset_noise),
             reward=jax.tree.map(f32, cfg.reward),
+            randomization=randomization,
         )
 
     def _check_target(self, cfg: EnvConfig) -> None:
@@ -175,7 +205,15 @@ class MaraEnv:
         # The reset pose is collision-free (tests check it for the largest reset_noise),
         # so reset runs kinematics only: auto-reset then costs little.
         pose = self.arm.pose(q, collide=False)
-        obs, metrics, _ = self._observe(q, pose, jnp.zeros(6), params)
+        history = None
+        if self.randomizer is None:
+            obs, metrics, _ = self._observe(q, pose, jnp.zeros(6), params)
+        else:
+            key, draw_key, sensor_key = jax.random.split(key, 3)
+            params = params.replace(randomization=rnd.draw(draw_key, params.randomization))
+            obs, metrics, _ = self._observe(q, pose, jnp.zeros(6), params)
+            obs, q_meas = self._observe_measured(sensor_key, q, jnp.zeros(6), params, obs)
+            history = self.randomizer.initial_history(q_meas)
         zero = jnp.zeros(())
         metrics.update(
             collided=zero,
@@ -197,6 +235,7 @@ class MaraEnv:
             key=key,
             params=params,
             metrics={k: metrics[k] for k in self.metric_keys},
+            action_history=history,
         )
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
@@ -208,22 +247,37 @@ class MaraEnv:
                 f"action must have shape (6,) (joint targets motor1..motor6), got {action.shape};"
                 " use jax.vmap(env.step) or mara_mjx.BatchedEnv for batches"
             )
+        randomizer, history, model = self.randomizer, state.action_history, None
         with jax.named_scope("action"):
             finite = jnp.isfinite(action)
-            command = jnp.where(finite, action, state.q)
-            command = jnp.clip(command, self.arm.lower, self.arm.upper)
             n_nonfinite = jnp.sum(~finite).astype(jnp.float32)
+            if randomizer is None:
+                command = jnp.where(finite, action, state.q)
+                command = jnp.clip(command, self.arm.lower, self.arm.upper)
+            else:
+                # the policy commands in the encoders' frame (q + offset), k steps late
+                offset = params.randomization.draw["offset"]
+                command = jnp.where(finite, action, state.q + offset)
+                command, history = randomizer.delay(history, command, params.randomization)
+                command = jnp.clip(command, self.arm.lower, self.arm.upper) - offset
+                command = jnp.clip(command, self.arm.lower, self.arm.upper)
+                if cfg.driver == "real":
+                    model = randomizer.model(self.arm.mjx_model, params.randomization)
 
         if cfg.driver == "train":
             q, qvel, pose = self.arm.train_step(state.q, command, cfg.control_dt)
             ref = command
         else:
             q, qvel, ref, pose = self.arm.real_step(
-                state.q, state.qvel, state.ref, command, params.velocity, self.n_substeps
+                state.q, state.qvel, state.ref, command, params.velocity, self.n_substeps, model
             )
 
+        key = state.key
         with jax.named_scope("observation"):
             obs, metrics, theta = self._observe(q, pose, qvel, params)
+            if randomizer is not None:
+                key, sensor_key = jax.random.split(key)
+                obs, _ = self._observe_measured(sensor_key, q, qvel, params, obs)
         with jax.named_scope("reward"):
             reward = rewards.reward(
                 metrics["distance"],
@@ -265,10 +319,24 @@ class MaraEnv:
             terminated=blowup,
             truncated=step >= cfg.max_episode_steps,
             step=step,
+            key=key,
             metrics={k: metrics[k] for k in self.metric_keys},
+            action_history=history,
         )
 
     # -------------------------------------------------------------- internals
+    def _observe_measured(
+        self, key: jax.Array, q: jax.Array, qvel: jax.Array, params: EnvParams, obs: jax.Array
+    ) -> tuple[jax.Array, jax.Array]:
+        """(the observation through the encoders, the measured q): q + offset + noise, and
+        with measured_kinematics e, quat_err, v from the forward kinematics of that q."""
+        q_meas = self.randomizer.measure(key, q, params.randomization)
+        if self.config.randomization.measured_kinematics:
+            pose = self.arm.pose(q_meas, collide=False)
+            obs, _, _ = self._observe(q_meas, pose, qvel, params)
+            return obs, q_meas
+        return obs.at[:6].set(q_meas), q_meas
+
     def _observe(
         self, q: jax.Array, pose: ArmPose, qvel: jax.Array, params: EnvParams
     ) -> tuple[jax.Array, dict[str, jax.Array], jax.Array]:

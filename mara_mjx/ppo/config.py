@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Literal
+from typing import Any, Literal
 
 from mara_mjx.config import ConfigMixin as _ConfigMixin
 from mara_mjx.config import check_int as _check_int
@@ -244,16 +244,17 @@ def reward_curriculum(text: str) -> dict[str, float]:
 def for_env(config: PPOConfig, env: Any) -> PPOConfig:
     """`config` with the env-dependent fields resolved: `quat_index` from the env's
     `observation_layout` (a list of {name, start, stop, ...}; -1 where it has no
-    quat_err), and `train_reward` cleared for an env whose params have no `reward`."""
+    quat_err), and `train_reward` and `train_collision_penalty` cleared for an env whose
+    params have no `reward`."""
     layout = getattr(env, "observation_layout", None) or []
     starts = [int(part["start"]) for part in layout if part.get("name") == "quat_err"]
     index = starts[0] if (config.canonical_quat and starts) else -1
     resolved = config if index == config.quat_index else config.replace(quat_index=index)
-    # An env without the spec's reward hyperparameters (a user's own Env) gets no reward
-    # curriculum: the preset's default cannot apply to it, and the saved config says so.
-    params = getattr(env, "default_params", None)
-    if resolved.train_reward and not hasattr(params, "reward"):
-        resolved = resolved.replace(train_reward="")
+    # An env without the spec's reward hyperparameters (a user's own Env) gets neither
+    # training-reward curriculum: the preset's defaults cannot apply to it, and the saved
+    # config says so.
+    if not hasattr(getattr(env, "default_params", None), "reward"):
+        resolved = resolved.replace(train_reward="", train_collision_penalty=0.0)
     return resolved
 
 
