@@ -6,7 +6,7 @@ compiles with Python's GIL released, so two compiles in two threads overlap on a
 with spare cores (a GPU host has many):
 
 * `trainer.run` is lowered and compiled for the state `trainer.init` will return (its
-  shapes from `jax.eval_shape`, its placement: one device) while the main thread
+  shapes from `jax.eval_shape`; one device) while the main thread
   compiles and runs `init`; the first `trainer.run(state, n)` call then finds the
   executable in the jitted function's cache (no second compile);
 * then the evaluation rollout is compiled, for a policy of the final one's shapes,
@@ -74,13 +74,11 @@ def start(
     guess that differs would compile twice)."""
     if trainer.env.mesh is not None or jax.device_count() != 1:
         return None
-    placed = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
 
     def compile_all(done: Callable[[str], None]) -> None:
-        shapes = jax.eval_shape(trainer.init, key)
-        state = jax.tree.map(
-            lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, sharding=placed), shapes
-        )
+        # On one device init's outputs are uncommitted arrays: shapes without a sharding
+        # give the same cache key (a sharding here would not: a second compile)
+        state = jax.eval_shape(trainer.init, key)
         n = jax.ShapeDtypeStruct((), jax.numpy.int32, weak_type=True)  # a Python int
         trainer.run.lower(state, n).compile()
         done("run")
