@@ -2,28 +2,30 @@
 
     python benchmarks/determinism.py --out $OUT/determinism        # on a GPU, ~3-4 min
 
-Runs the default preset's PPO (`python -m mara_mjx.train --env MARACollisionOrient`'s
-program: 2048 envs x 32 steps, `make_train`) in fresh processes, with XLA's
-deterministic GPU ops on and off. Each process compiles `trainer.run`, runs `--calls`
-calls of `--updates` updates from seed 0 (the first call also compiles), timing the
-later ones (env steps/s), hashes the parameters' bits (sha256), then starts again from
-seed 0 in the same process with the same executable and hashes again. So:
+Runs the default preset's PPO (the program of `python -m mara_mjx.train --env
+MARACollisionOrient`: 2048 envs x 32 steps, `make_train`) in fresh processes under
+several XLA_FLAGS settings (`--settings`, default nondet, noautotune, det; see SETTINGS).
+Each process compiles `trainer.run`, runs `--calls` calls of `--updates` updates from
+seed 0 (the first call also compiles), timing the later ones (env steps/s), hashes the
+parameters' bits (sha256) after every call, then starts again from seed 0 in the same
+process with the same executable and hashes again. So:
 
-* same-process repeat differs: the executable itself is non-deterministic (atomics:
-  scatter-add, some reductions, split-K GEMMs);
-* a second cold process differs but the same-process repeats agree: compilation differs
-  between processes (autotuning picks other kernels); a process that loads the first
-  one's executable from the persistent compilation cache (`warm`) shows whether a
-  cached executable is reproducible.
+* a same-process repeat differs: the executable itself is non-deterministic (atomics:
+  float scatter-adds, select-and-scatter, some GEMM / convolution algorithms);
+* a second cold process (`cold2`) differs while each process repeats itself:
+  compilation differs between processes (autotuning picked other kernels); `noautotune`
+  (`--xla_gpu_autotune_level=0`) tests that, `warm` (a process loading `cold`'s
+  executable from the persistent compilation cache) shows whether a cached executable
+  reproduces.
 
-Runs per setting (`--runs`): `cold` (fresh compilation cache), `cold2` (another fresh
-cache), `warm` (cold's cache). The optimized HLO of each setting's `trainer.run` is
-written to OUT/hlo-<setting>.txt, and OUT/ops-<setting>.json counts the ops whose GPU
-implementation may be non-deterministic (scatter, select-and-scatter, sort, reduce and
-reduce-window fusions, cuBLAS/cuBLASLt/Triton GEMMs, cuDNN calls, all-reduce), with
-each scatter's line. Results: OUT/determinism.json and a table on stdout. On a CPU it
-runs too (`--num_envs 8 --num_steps 4 --updates 2` for a smoke test), but the CPU backend
-is deterministic: what it shows is that the script works.
+The static side (on the CPU, tests/test_determinism.py): the lowered PPO update and env
+step hold no float scatter-add or select-and-scatter. The optimized HLO of each
+setting's `trainer.run` is written to OUT/hlo-<setting>.txt, and OUT/ops-<setting>.json
+counts the ops whose GPU implementation may be non-deterministic (scatter,
+select-and-scatter, sort, reductions, cuBLAS / cuBLASLt / Triton GEMMs, cuDNN calls,
+all-reduce), with their first lines. Results: OUT/determinism.json and a line per
+process on stdout. On a CPU it runs too (`--num_envs 8 --num_steps 4 --updates 2` for a
+smoke test), but the CPU backend is deterministic: it shows only that the script works.
 """
 
 from __future__ import annotations
@@ -38,7 +40,16 @@ import tempfile
 import time
 from pathlib import Path
 
-SETTINGS = {"det": "true", "nondet": "false"}
+SETTINGS = {  # name -> XLA_FLAGS added to the process's own
+    "det": "--xla_gpu_deterministic_ops=true",
+    "nondet": "--xla_gpu_deterministic_ops=false",
+    # no autotuning: the same kernels in every compile (is the run-to-run difference
+    # autotuning's choice, and what does the flag's cost come from?)
+    "noautotune": "--xla_gpu_deterministic_ops=false --xla_gpu_autotune_level=0",
+    # deterministic implementations of non-deterministic ops, autotuning kept
+    "excl": "--xla_gpu_deterministic_ops=false --xla_gpu_exclude_nondeterministic_ops=true",
+}
+RUNS = ("cold", "cold2", "warm")
 PATTERNS = {
     "scatter": r"\bscatter\(",
     "select-and-scatter": r"\bselect-and-scatter\(",
@@ -57,8 +68,9 @@ PATTERNS = {
 def child(args: argparse.Namespace) -> None:
     """One process: XLA_FLAGS from --setting, train, hash, repeat, print one JSON line."""
     flags = os.environ.get("XLA_FLAGS", "")
-    flags = re.sub(r"--xla_gpu_deterministic_ops=\S+", "", flags)
-    os.environ["XLA_FLAGS"] = f"{flags} --xla_gpu_deterministic_ops={SETTINGS[args.setting]}"
+    for name in ("deterministic_ops", "autotune_level", "exclude_nondeterministic_ops"):
+        flags = re.sub(rf"--xla_gpu_{name}=\S+", "", flags)
+    os.environ["XLA_FLAGS"] = f"{flags} {SETTINGS[args.setting]}"
     import hashlib
 
     import jax
@@ -139,8 +151,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", default="runs/determinism")
     parser.add_argument("--env", default="MARACollisionOrient")
-    parser.add_argument("--settings", nargs="+", default=["nondet", "det"], choices=SETTINGS)
-    parser.add_argument("--runs", nargs="+", default=["cold", "cold2", "warm"])
+    parser.add_argument(
+        "--settings", nargs="+", default=["nondet", "noautotune", "det"], choices=SETTINGS
+    )
+    parser.add_argument("--runs", nargs="+", default=["cold", "cold2"], choices=RUNS)
     parser.add_argument("--updates", type=int, default=10, help="updates per call")
     parser.add_argument("--calls", type=int, default=3)
     parser.add_argument("--num_envs", type=int, default=0, help="0: the default preset's")
