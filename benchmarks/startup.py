@@ -15,8 +15,9 @@ Two measurements of `python -m mara_mjx.train --env ENV` (tiny settings by defau
     PYTHONPATH=$PWD python benchmarks/startup.py phases --env MARACollisionOrient
     PYTHONPATH=$PWD python benchmarks/startup.py cli --repeat 2 --cache /tmp/jaxcache
 
-Extra flags after `--` go to the train CLI (e.g. `-- --num_envs 2048` for the default
-preset's size). Results: one JSON line per measurement on stdout (and `--json PATH`).
+`--size default` runs the default preset (2048 envs x 32 steps, two updates: a GPU's
+start-up); extra flags after `--` go to the train CLI. Results: one JSON line per
+measurement on stdout (and `--json PATH`).
 """
 
 from __future__ import annotations
@@ -45,6 +46,8 @@ TINY = [
     "--checkpoint_every", "1000",
     "--eval.episodes", "2",
 ]  # fmt: skip
+# the default preset (2048 envs x 32 steps) for two updates: a GPU's start-up
+DEFAULT = ["--total_timesteps", "131072", "--updates_per_call", "1", "--checkpoint_every", "1000"]
 EVENTS = {
     "/jax/core/compile/jaxpr_trace_duration": "trace_s",
     "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s",
@@ -100,7 +103,7 @@ def phases(env_name: str, extra: list[str], cache: str, overlap: bool) -> dict:
     mark("imports (jax, mara_mjx.train)", t)
     t = time.monotonic()
     args = train_cli.build_parser().parse_args(
-        ["--env", env_name, *TINY, *extra, "--compilation_cache", cache]
+        ["--env", env_name, *extra, "--compilation_cache", cache]
     )
     train_cli.configure_jax(args.compilation_cache)
     plan = train_cli.resolve(args)
@@ -153,7 +156,7 @@ def phases(env_name: str, extra: list[str], cache: str, overlap: bool) -> dict:
 
 def cli(env_name: str, extra: list[str], cache: str) -> dict:
     out = Path(tempfile.mkdtemp(prefix="startup-")) / "run"
-    cmd = [sys.executable, "-m", "mara_mjx.train", "--env", env_name, *TINY, *extra]
+    cmd = [sys.executable, "-m", "mara_mjx.train", "--env", env_name, *extra]
     cmd += ["--out", str(out), "--compilation_cache", cache, "--progress", "false"]
     start = time.monotonic()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -197,8 +200,14 @@ def main() -> None:
         "train CLI does (false: one after the other, as before issue 14)",
     )
     parser.add_argument("--json", help="also append the results to this file")
+    parser.add_argument(
+        "--size",
+        choices=("tiny", "default"),
+        default="tiny",
+        help="tiny: 4 envs x 8 steps (a CPU); default: the default preset, 2 updates (a GPU)",
+    )
     args, extra = parser.parse_known_args()
-    extra = [a for a in extra if a != "--"]
+    extra = (TINY if args.size == "tiny" else DEFAULT) + [a for a in extra if a != "--"]
     for _ in range(args.repeat):
         if args.mode == "phases":
             result = phases(args.env, extra, args.cache, args.overlap == "true")
