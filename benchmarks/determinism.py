@@ -20,7 +20,7 @@ process with the same executable and hashes again. So:
 
 The static side (on the CPU, tests/test_determinism.py): the lowered PPO update and env
 step hold no float scatter-add or select-and-scatter. The optimized HLO of each
-setting's `trainer.run` is written to OUT/hlo-<setting>.txt, and OUT/ops-<setting>.json
+setting's `trainer.run` is written to OUT/hlo-<setting>.txt.gz, and OUT/ops-<setting>.json
 counts the ops whose GPU implementation may be non-deterministic (scatter,
 select-and-scatter, sort, reductions, cuBLAS / cuBLASLt / Triton GEMMs, cuDNN calls,
 all-reduce), with their first lines. Results: OUT/determinism.json and a line per
@@ -31,6 +31,7 @@ smoke test), but the CPU backend is deterministic: it shows only that the script
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import os
 import re
@@ -111,12 +112,13 @@ def child(args: argparse.Namespace) -> None:
     repeat, seconds2 = train()
     steady = sorted(seconds[1:] + seconds2[1:]) or [float("nan")]
     out = Path(args.out)
-    hlo_path = out / f"hlo-{args.setting}.txt"
+    hlo_path = out / f"hlo-{args.setting}.txt.gz"
     ops = None
     if not hlo_path.exists():
         state = trainer.init(jax.random.key(0))
         text = trainer.run.lower(state, args.updates).compile().as_text()
-        hlo_path.write_text(text)
+        with gzip.open(hlo_path, "wt") as f:
+            f.write(text)
         ops = count_ops(text)
         (out / f"ops-{args.setting}.json").write_text(json.dumps(ops, indent=1))
     result = {
