@@ -33,6 +33,7 @@ import shutil  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
+import threading  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 TINY = [
@@ -162,6 +163,15 @@ def cli(env_name: str, extra: list[str], cache: str) -> dict:
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     times: dict[str, float] = {}
     lines = []
+
+    def watch() -> None:  # the first row of progress.csv: the first update is done
+        csv = out / "progress.csv"
+        while proc.poll() is None and "first_update_s" not in times:
+            if csv.exists() and len(csv.read_text().splitlines()) > 1:
+                times["first_update_s"] = time.monotonic() - start
+            time.sleep(0.1)
+
+    threading.Thread(target=watch, daemon=True).start()
     for line in proc.stdout:  # type: ignore[union-attr]
         now = time.monotonic() - start
         lines.append(line)
@@ -169,9 +179,6 @@ def cli(env_name: str, extra: list[str], cache: str) -> dict:
             times["config_s"] = now
         if "the first call compiles" in line:
             times["training_starts_s"] = now
-        if "first_update_s" not in times and (out / "progress.csv").exists():
-            if len((out / "progress.csv").read_text().splitlines()) > 1:
-                times["first_update_s"] = now  # at the latest: the next line's time
         if line.startswith("time to "):
             times.setdefault("training_done_s", now)
     proc.wait()
