@@ -130,7 +130,7 @@ def phases(env_name: str, extra: list[str], cache: str, overlap: bool) -> dict:
     if overlap:  # as the train CLI does (mara_mjx.ppo.warmup)
         evaluate_fn = make_evaluate(env, plan.eval)
         policy_of = lambda s: make_policy(s, plan.ppo)  # noqa: E731
-        background = warmup.start(trainer, key, evaluate_fn, policy_of)
+        background = warmup.start(trainer, key, evaluate_fn, policy_of, min_cpus=1)
     state = jax.block_until_ready(trainer.init(key))
     mark("trainer.init (first call)" + (", trainer.run compiling beside it" if overlap else ""), t)
     if background is not None:

@@ -13,7 +13,7 @@ from mara_mjx.ppo.train import make_train
 def test_first_run_call_uses_the_background_compile(compiled):
     trainer = make_train(PointReach(), TOY_CONFIG, updates_per_call=2)
     key = jax.random.key(0)
-    background = warmup.start(trainer, key)
+    background = warmup.start(trainer, key, min_cpus=1)
     assert background is not None  # one CPU device
     state = trainer.init(key)
     background.wait("run")

@@ -19,6 +19,7 @@ start-up section, has the measured seconds).
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 from collections.abc import Callable
@@ -63,7 +64,11 @@ class Background:
 
 
 def start(
-    trainer: Any, key: jax.Array, evaluate_fn: Any = None, make_policy: Any = None
+    trainer: Any,
+    key: jax.Array,
+    evaluate_fn: Any = None,
+    make_policy: Any = None,
+    min_cpus: int = 4,
 ) -> Background | None:
     """In one background thread: compile `trainer.run(state, n)` (n a Python int) for
     `state = trainer.init(key)` (stage "run": call `wait("run")` before the first
@@ -71,8 +76,12 @@ def start(
     the jitted `evaluate_fn(policy)` (`mara_mjx.ppo.evaluation.make_evaluate`) for
     `policy = make_policy(state)`. Only on
     one device (None otherwise: where a sharded state lives is what `init` decides, and a
-    guess that differs would compile twice)."""
+    guess that differs would compile twice), and with at least `min_cpus` CPU cores (on
+    2 cores the two compiles share them and the background trace fights the foreground
+    for the GIL: measured slower, benchmarks/NOTES.md section 13)."""
     if trainer.env.mesh is not None or jax.device_count() != 1:
+        return None
+    if (os.cpu_count() or 1) < min_cpus:
         return None
 
     def compile_all(done: Callable[[str], None]) -> None:
