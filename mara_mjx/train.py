@@ -73,9 +73,9 @@ from mara_mjx.cli import (
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.envs.randomize import RandomizeConfig
 from mara_mjx.ppo import checkpoint as ckpt
-from mara_mjx.ppo import logger
+from mara_mjx.ppo import logger, warmup
 from mara_mjx.ppo.config import PRESETS, EvalConfig, PPOConfig, RunConfig
-from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table
+from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table, make_evaluate
 from mara_mjx.ppo.policy import make_policy
 from mara_mjx.ppo.train import Trainer, make_train, num_parameters
 from mara_mjx.rewards import RewardParams
@@ -246,10 +246,15 @@ def main(argv: list[str] | None = None) -> int:
         else distributed.NoLog(logger.columns(orientation))
     )
     milestones = logger.Milestones(progress.get("milestones"))
+    evaluate_fn = make_evaluate(env, plan.eval) if main_process and plan.run.evaluate else None
     try:
         with STOP:  # Ctrl-C: finish the call in flight, write a checkpoint, exit 130
-            if state is None:
-                state = trainer.init(jax.random.key(plan.ppo.seed))
+            if state is None:  # compile run (and the evaluation) while init compiles
+                key = jax.random.key(plan.ppo.seed)
+                warm = warmup.start(trainer, key, evaluate_fn, lambda s: make_policy(s, plan.ppo))
+                state = trainer.init(key)
+                if warm is not None:
+                    warm.wait("run")
             if main_process:
                 print(
                     f"{plan.env_name}: {trainer.num_updates} updates of {plan.ppo.num_envs} "
@@ -266,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
     state = distributed.gather(state)  # several processes: each gets the whole state
     try:
         if main_process:
-            finish(env, state, plan, meta, last, milestones)
+            finish(env, state, plan, meta, last, milestones, evaluate_fn=evaluate_fn)
     finally:
         distributed.barrier("mara_mjx.train: finished")
     return 0
@@ -374,8 +379,10 @@ def finish(
     last: dict[str, float],
     milestones: logger.Milestones,
     result: Any = None,
+    evaluate_fn: Any = None,
 ) -> None:
-    """Final evaluation (unless `result` is given), plots and summary.json."""
+    """Final evaluation (unless `result` is given; `evaluate_fn`: its jitted rollout,
+    compiled while training ran), plots and summary.json."""
     if not last and (plan.out / "progress.csv").exists():  # resumed a finished run
         rows = logger.read_csv(plan.out / "progress.csv")
         last = {k: float(v) for k, v in rows[-1].items()} if rows else {}
@@ -393,7 +400,8 @@ def finish(
         print(f"time to {name}: {rec['time_s']:.1f} s ({rec['env_steps']} env steps)")
     if plan.run.evaluate:
         if result is None:
-            result = evaluate(env, make_policy(state, plan.ppo), plan.eval)
+            policy = make_policy(state, plan.ppo)
+            result = evaluate(env, policy, plan.eval, fn=evaluate_fn)
         orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
         print(format_table(plan.env_name, result, orientation, plan.eval), flush=True)
         report = {

@@ -157,10 +157,14 @@ def make_evaluate(
     return jax.jit(evaluate)
 
 
-def evaluate(env: Any, policy: Policy, config: EvalConfig, params: Any = None) -> EvalResult:
+def evaluate(
+    env: Any, policy: Policy, config: EvalConfig, params: Any = None, fn: Any = None
+) -> EvalResult:
     """Run the evaluation (compiles once per env and config); `params` as in
-    `make_evaluate`."""
-    out = jax.device_get(make_evaluate(env, config, params)(policy))
+    `make_evaluate`; `fn`: `make_evaluate(env, config, params)` made (and compiled)
+    beforehand."""
+    fn = make_evaluate(env, config, params) if fn is None else fn
+    out = jax.device_get(fn(policy))
     return EvalResult(**{k: np.asarray(v) for k, v in out.items()})
 
 

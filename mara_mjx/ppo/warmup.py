@@ -1,0 +1,97 @@
+"""Compile in the background what the train CLI calls later, to shorten its start-up.
+
+Before the first PPO update the train CLI used to compile, one after the other,
+`trainer.init` and then `trainer.run`; after training, the final evaluation. XLA
+compiles with Python's GIL released, so two compiles in two threads overlap on a machine
+with spare cores (a GPU host has many):
+
+* `trainer.run` is lowered and compiled for the state `trainer.init` will return (its
+  shapes from `jax.eval_shape`; one device) while the main thread
+  compiles and runs `init`; the first `trainer.run(state, n)` call then finds the
+  executable in the jitted function's cache (no second compile);
+* then the evaluation rollout is compiled, for a policy of the final one's shapes,
+  while training runs.
+
+Both only fill caches: the results do not depend on them, and a failed or unfinished
+background compile leaves the later call to compile as before (`benchmarks/NOTES.md`,
+start-up section, has the measured seconds).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import jax
+
+
+class Background:
+    """A daemon thread running `fn(done)`, where `done(stage)` marks a stage finished;
+    `wait(stage)` blocks until it is (or the thread ended), `wait()` joins the thread.
+    An exception is printed as one line and dropped: the foreground call it was
+    preparing compiles by itself instead."""
+
+    def __init__(self, what: str, fn: Callable[[Callable[[str], None]], Any]):
+        self.what = what
+        self.error: BaseException | None = None
+        self._stages: dict[str, threading.Event] = {}
+        self._lock = threading.Lock()
+
+        def target() -> None:
+            try:
+                fn(lambda stage: self._event(stage).set())
+            except Exception as e:  # a cache warm-up must never stop training
+                self.error = e
+                print(f"mara_mjx: background compile of {what} failed: {e}", file=sys.stderr)
+
+        self.thread = threading.Thread(target=target, name=f"compile {what}", daemon=True)
+        self.thread.start()
+
+    def _event(self, stage: str) -> threading.Event:
+        with self._lock:
+            return self._stages.setdefault(stage, threading.Event())
+
+    def wait(self, stage: str | None = None) -> None:
+        if stage is None:
+            self.thread.join()
+            return
+        event = self._event(stage)
+        while not event.wait(0.1) and self.thread.is_alive():
+            pass
+
+
+def start(
+    trainer: Any,
+    key: jax.Array,
+    evaluate_fn: Any = None,
+    make_policy: Any = None,
+    min_cpus: int = 4,
+) -> Background | None:
+    """In one background thread: compile `trainer.run(state, n)` (n a Python int) for
+    `state = trainer.init(key)` (stage "run": call `wait("run")` before the first
+    `trainer.run`, so that it does not start a second compile of its own), then, if given,
+    the jitted `evaluate_fn(policy)` (`mara_mjx.ppo.evaluation.make_evaluate`) for
+    `policy = make_policy(state)`. Only on
+    one device (None otherwise: where a sharded state lives is what `init` decides, and a
+    guess that differs would compile twice), and with at least `min_cpus` CPU cores (on
+    2 cores the two compiles share them and the background trace fights the foreground
+    for the GIL: measured slower, benchmarks/NOTES.md section 13)."""
+    if trainer.env.mesh is not None or jax.device_count() != 1:
+        return None
+    if (os.cpu_count() or 1) < min_cpus:
+        return None
+
+    def compile_all(done: Callable[[str], None]) -> None:
+        # On one device init's outputs are uncommitted arrays: shapes without a sharding
+        # give the same cache key (a sharding here would not: a second compile)
+        state = jax.eval_shape(trainer.init, key)
+        n = jax.ShapeDtypeStruct((), jax.numpy.int32, weak_type=True)  # a Python int
+        trainer.run.lower(state, n).compile()
+        done("run")
+        if evaluate_fn is not None:
+            evaluate_fn.lower(make_policy(state)).compile()
+
+    return Background("trainer.run and the evaluation", compile_all)
