@@ -16,12 +16,10 @@ time at which the deterministic mean per-axis error first dropped below 5 mm and
 and plots/*.png.
 
 Bad input (unknown env, invalid config, unwritable folder, missing or corrupt checkpoint)
-fails before anything is compiled, with one line on stderr and exit status 2.
-
-Ctrl-C finishes the jitted call in flight, writes a checkpoint and exits with status 130
-(`--resume` continues; a second Ctrl-C exits at once). A folder with no checkpoint (a run
-killed before its first one) is started over by the same command. `--preset cpu` is
-sized for a laptop CPU (README, benchmarks/NOTES.md section 11).
+fails before anything is compiled, with one line on stderr and exit status 2. Ctrl-C
+finishes the jitted call in flight, writes a checkpoint and exits with status 130
+(`--resume` continues; a second Ctrl-C exits at once); a folder with no checkpoint (a run
+killed before its first one) is started over by the same command.
 """
 
 # ruff: noqa: E402  (the clock starts before the heavy imports)
@@ -317,15 +315,9 @@ def train_loop(
     per_update = trainer.steps_per_update
     resumed, time_before = plan.checkpoint is not None, progress["time_s"]
     last: dict[str, float] = {}
-    bar = tqdm(
-        total=trainer.num_updates * per_update,
-        initial=done * per_update,
-        unit="step",
-        unit_scale=True,
-        dynamic_ncols=True,
-        disable=not (plan.run.progress and distributed.is_main()),
-        file=sys.stderr,
-    )
+    show = plan.run.progress and distributed.is_main()
+    bar = tqdm(total=trainer.num_updates * per_update, initial=done * per_update, unit="step",
+               unit_scale=True, dynamic_ncols=True, disable=not show, file=sys.stderr)  # fmt: skip
     while done < trainer.num_updates and not STOP.requested:
         next_checkpoint = (done // every + 1) * every
         n = min(trainer.updates_per_call, trainer.num_updates - done, next_checkpoint - done)

@@ -16,6 +16,10 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 # read or write the user's cache folder, so a run's timing does not depend on an earlier
 # one. Tests that want a cache give their subprocesses a fresh temporary folder.
 os.environ["MARA_MJX_COMPILATION_CACHE"] = "0"
+# The CLIs set full-precision matmuls (cli.configure_jax) unless this variable is set;
+# tests call them in-process, and a config change mid-session would retrace every
+# jitted function of the session (the retrace guard below would fail). Set it as they do.
+os.environ["JAX_DEFAULT_MATMUL_PRECISION"] = "highest"
 
 import functools  # noqa: E402
 

@@ -45,8 +45,8 @@ def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bo
         obs_clip=5.0,
         relative_actions=relative,
         hidden_obs=(13, 14, 15) if relative else (),  # MARAOrient's TCP velocity
-        canonical_quat=relative,  # MARAOrient: the export must flip quat_err's sign too
-        **ppo,
+        # MARAOrient: the export must flip quat_err's sign too
+        **{"canonical_quat": relative, **ppo},
     )
     config = for_env(config, env)
     network = make_network(config, env.action_size)

@@ -18,6 +18,7 @@ from flax import struct
 import mara_mjx
 from mara_mjx.cli import Section, add_flags, overrides
 from mara_mjx.envs.base import EnvConfig
+from mara_mjx.envs.randomize import RandomizeConfig
 from mara_mjx.ppo import (
     PRESETS,
     EvalConfig,
@@ -437,8 +438,9 @@ def test_flags_cover_every_field_and_resolve_ambiguity():
     sections = (
         Section("ppo", PPOConfig),
         Section("eval", EvalConfig),
-        Section("env", EnvConfig, exclude=("reward",)),
+        Section("env", EnvConfig, exclude=("reward", "randomization")),
         Section("env", RewardParams),
+        Section("randomization", RandomizeConfig),
     )
     add_flags(parser, sections)
     strings = {s for a in parser._actions for s in a.option_strings}
