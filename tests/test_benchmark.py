@@ -260,6 +260,20 @@ def test_run_summary_subtracts_compile():
     assert out["settled_to_1mm_env_steps"] == 300 and out["best_settled_mm"] == 0.5
 
 
+def test_bad_input_as_a_user_sees_it():
+    """The command line itself: exit status 2 and the problem named, no traceback."""
+    proc = subprocess.run(
+        _cli("env", "--tasks", "NoSuchTask"),
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "JAX_PLATFORMS": "cpu"},
+    )
+    assert proc.returncode == 2 and "unknown task" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
 @pytest.mark.parametrize(
     "args, message",
     [
@@ -272,14 +286,12 @@ def test_run_summary_subtracts_compile():
         (["scaling", "--device_counts", "64"], "not available"),
     ],
 )
-def test_bad_input_gives_clear_error(args, message):
-    proc = subprocess.run(
-        _cli(*args),
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env={**os.environ, "JAX_PLATFORMS": "cpu"},
-    )
-    assert proc.returncode == 2
-    assert message in proc.stderr
+def test_bad_input_gives_clear_error(args, message, capsys, compiled):
+    """In-process (the same `main` as the command above): exit 2 before any compile."""
+    from mara_mjx.benchmark import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(args)
+    assert stop.value.code == 2
+    assert message in capsys.readouterr().err
+    assert not compiled
