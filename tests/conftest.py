@@ -109,3 +109,37 @@ def mara() -> Jitted:
 @pytest.fixture(scope="session")
 def orient() -> Jitted:
     return jitted("MARACollisionOrient")
+
+
+@pytest.fixture(scope="session")
+def cli_env(tmp_path_factory) -> dict[str, str]:
+    """The environment of the CLI subprocesses (tests/test_train_cli.py and others): the
+    CPU, and a persistent compilation cache in a temporary folder shared by the session's
+    subprocesses (so a resumed run or an evaluation reuses a training run's programs)."""
+    cache = tmp_path_factory.mktemp("jax_cache")
+    return {
+        **os.environ,
+        "JAX_PLATFORMS": "cpu",
+        "MARA_MJX_COMPILATION_CACHE": str(cache),
+        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+        "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0",
+    }
+
+
+# The longest files first (measured on the 2-core CPU; benchmarks/NOTES.md "The test
+# suite's time"), so that pytest-xdist's workers do not end on a long file started last.
+_LONGEST_FIRST = (
+    "test_train_cli.py",
+    "test_benchmark.py",
+    "test_random_target.py",
+    "test_interrupt.py",
+    "test_envs.py",
+    "test_gym.py",
+    "test_distributed.py",
+    "test_sharding.py",
+)
+
+
+def pytest_collection_modifyitems(items):
+    rank = {name: i for i, name in enumerate(_LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))

@@ -1,5 +1,8 @@
 """The four tasks: jitted smoke with retrace guards, observation layout, rules, errors."""
 
+import importlib.util
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -8,6 +11,8 @@ from conftest import TASK_NAMES, jitted
 
 import mara_mjx
 from mara_mjx.envs.base import DEFAULT_TARGET_POS, METRIC_KEYS
+
+DATA = Path(__file__).resolve().parent / "data"
 
 TABLE_FOLD = jnp.array([0.0, 2.0, 0.0, 0.0, 0.0, 0.0])
 SPEC_REACH = jnp.array([1.3338, -1.5341, -0.7833, 0.0, 2.3903, -0.237])
@@ -198,3 +203,34 @@ def test_target_override_is_used():
     env = mara_mjx.make("MARA", target_pos=(0.3, 0.2, 1.0))
     np.testing.assert_allclose(np.asarray(env.default_params.target_pos), [0.3, 0.2, 1.0])
     assert env.config.target_pos != DEFAULT_TARGET_POS
+
+
+# ------------------------------------- unchanged since the random-target tasks came
+def _golden_module():
+    spec = importlib.util.spec_from_file_location("golden", DATA / "fixed_target_golden.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("name", TASK_NAMES)
+def test_fixed_target_tasks_are_unchanged_bit_for_bit(name):
+    """Reset and 4 steps (one colliding) of each fixed task give the arrays recorded on
+    commit c6cf3b4, before the random-target tasks (tests/data/fixed_target_golden.py)."""
+    golden_module = _golden_module()
+    golden = np.load(DATA / "fixed_target_golden.npz")
+    j = jitted(name)
+    got = golden_module.rollout(j.reset, j.step, j.env.make_params(reset_noise=0.1))
+    assert set(j.env.metric_keys) == set(METRIC_KEYS)  # no new metrics either
+    same_platform = (
+        str(golden["jax_version"]) == jax.__version__
+        and str(golden["backend"]) == jax.default_backend()
+    )
+    for key, value in got.items():
+        expected = golden[f"{name}/{key}"]
+        if same_platform:
+            np.testing.assert_array_equal(value, expected, err_msg=f"{name} {key}")
+        else:  # another XLA may round the last bit differently
+            np.testing.assert_allclose(value, expected, rtol=1e-5, atol=1e-6, err_msg=key)
+    # the rollout is not trivial: a collision, and the arm near the target at step 1
+    assert golden[f"{name}/collided"][3] == 1.0 and golden[f"{name}/distance"][1] < 0.01

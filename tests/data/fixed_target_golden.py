@@ -1,5 +1,5 @@
 """Writes fixed_target_golden.npz: reset and 4 steps of each fixed-target task (train
-driver), the values `tests/test_random_target.py` requires bit-for-bit.
+driver), the values `tests/test_envs.py` requires bit-for-bit.
 
 It was run once on commit c6cf3b4, before the random-target tasks existed, on the CPU:
 
