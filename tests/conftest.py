@@ -125,21 +125,3 @@ def cli_env(tmp_path_factory) -> dict[str, str]:
         "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0",
     }
 
-
-# The longest files first (measured on the 2-core CPU; benchmarks/NOTES.md "The test
-# suite's time"), so that pytest-xdist's workers do not end on a long file started last.
-_LONGEST_FIRST = (
-    "test_train_cli.py",
-    "test_benchmark.py",
-    "test_random_target.py",
-    "test_interrupt.py",
-    "test_envs.py",
-    "test_gym.py",
-    "test_distributed.py",
-    "test_sharding.py",
-)
-
-
-def pytest_collection_modifyitems(items):
-    rank = {name: i for i, name in enumerate(_LONGEST_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
