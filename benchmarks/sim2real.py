@@ -56,6 +56,18 @@ RECIPES = {
 LATENCIES = (0, 1, 2, 3)
 OFFSETS_MRAD = (0.0, 0.5, 1.0, 2.0, 4.0)
 VELOCITIES = (0.3, 0.5)
+NOMINAL = RandomizeConfig(
+    mass_scale=(1.0, 1.0),
+    inertia_scale=(1.0, 1.0),
+    damping=(0.0, 0.0),
+    frictionloss=(0.0, 0.0),
+    armature_scale=(1.0, 1.0),
+    kp_scale=(1.0, 1.0),
+    kv_scale=(1.0, 1.0),
+    calibration_offset=0.0,
+    obs_noise_std=0.0,
+    latency_steps=(0, 0),
+)
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -71,6 +83,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--sweep_velocity", type=float, default=0.5, help="rad/s of the sweeps")
     p.add_argument("--recipes", default="abc", help="which recipes to run (subset of abc)")
     p.add_argument("--tiny", action="store_true", help="CPU smoke test: tiny everything")
+    p.add_argument(
+        "--keep",
+        default=None,
+        help="an earlier run's sim2real.json: its recipes not in --recipes are kept in the "
+        "report (with that run's command) until this run replaces them",
+    )
     return p.parse_args(argv)
 
 
@@ -88,6 +106,9 @@ def train(env_name: str, driver: str, randomize: bool, steps: float, args) -> tu
         n = min(trainer.updates_per_call, trainer.num_updates - done)
         state, _ = trainer.run(state, n)
         done += n
+        if done % (10 * trainer.updates_per_call) == 0 or done == trainer.num_updates:
+            jax.block_until_ready(state.params)
+            print(f"  {done}/{trainer.num_updates} updates, {time.monotonic() - start:.0f} s")
     jax.block_until_ready(state.params)
     seconds = time.monotonic() - start
     policy = make_policy(state, trainer.config)
@@ -114,15 +135,24 @@ def make_evaluator(env_name: str, draws: int, steps: int, config, tiny: bool):
         s = jax.vmap(env.reset, in_axes=(0, None))(keys, env_params)
 
         def body(s, _):
-            s = jax.vmap(env.step)(s, policy(s.obs))
-            return s, (s.metrics["collided"], s.metrics["physics_blowup"])
+            action = policy(s.obs)
+            s = jax.vmap(env.step)(s, action)
+            # the policy's raw (unclipped) action: large values mean it pushes into a limit
+            step_rad = jnp.max(jnp.abs(action), axis=-1)
+            return s, (s.metrics["collided"], s.metrics["physics_blowup"], step_rad)
 
-        s, (collided, blowup) = jax.lax.scan(body, s, None, length=steps)
+        s, (collided, blowup, step_rad) = jax.lax.scan(body, s, None, length=steps)
         r = s.params.randomization
+        hit = collided > 0
         return {
             "error_mm": 1000.0 * s.metrics["position_error"],
-            "collided": jnp.any(collided > 0, axis=0),
+            "collided": jnp.any(hit, axis=0),
             "blowup": jnp.any(blowup > 0, axis=0),
+            # diagnostics: when the first collision happens, the largest raw action
+            # entry (rad), the final measured q
+            "first_collision": jnp.where(jnp.any(hit, axis=0), jnp.argmax(hit, axis=0), steps),
+            "max_step_rad": jnp.max(step_rad, axis=0),
+            "final_q": s.obs[:, :6],
             "draw": r.draw,
         }
 
@@ -143,6 +173,9 @@ def summarise(out: dict, worst: int = 5) -> dict:
         "within_1mm": float(np.mean(worst_axis <= 1.0)),
         "collision_rate": float(np.mean(np.asarray(out["collided"]))),
         "physics_blowup_rate": float(np.mean(np.asarray(out["blowup"]))),
+        "first_collision_step_median": float(np.median(np.asarray(out["first_collision"]))),
+        "max_step_rad_median": float(np.median(np.asarray(out["max_step_rad"]))),
+        "final_q_median": np.median(np.asarray(out["final_q"]), axis=0).round(3).tolist(),
         "worst_cases": [
             {
                 "error_mm": err[i].round(3).tolist(),
@@ -186,6 +219,29 @@ def markdown(report: dict) -> str:
                 f"{100 * s['within_5mm']:.1f}% / {100 * s['within_1mm']:.1f}% | "
                 f"{100 * s['collision_rate']:.1f}% | {100 * s['physics_blowup_rate']:.1f}% |"
             )
+    diag = [k for k, r in report["recipes"].items() if "nominal" in r]
+    if diag:
+        lines += [
+            "",
+            f"Diagnostics at {report['sweep_velocity']} rad/s: the real driver on the nominal "
+            "model (no randomisation); on the randomised draws, the median step of the first "
+            "collision (the episode's length if none) and the median final measured q:",
+            "",
+            "| recipe | nominal: mean x, y, z | nominal: collisions | first collision (step) "
+            "| final q (median) |",
+            "|---|---|---|---|---|",
+        ]
+        for k in diag:
+            r = report["recipes"][k]
+            n = r["nominal"]
+            e = r["eval"][f"{report['sweep_velocity']} rad/s"]
+            lines.append(
+                f"| {k}: {r['name']} | {_axes(n['mean_mm'])} | {100 * n['collision_rate']:.1f}% "
+                f"| {e['first_collision_step_median']:.0f} | {_axes(e['final_q_median'])} |"
+            )
+    commands = {r["command"] for r in report["recipes"].values() if "command" in r}
+    if commands:
+        lines += ["", "Recipes kept from an earlier run: " + "; ".join(f"`{c}`" for c in commands)]
     for sweep, label, unit in (("latency", "latency", "steps"), ("offset", "offset", "mrad")):
         keys = [k for k, r in report["recipes"].items() if sweep in r]
         if not keys:
@@ -229,6 +285,12 @@ def main(argv=None) -> int:
         "recipes": {},
         "timings_s": {},
     }
+    if args.keep:
+        kept = json.loads(Path(args.keep).read_text())
+        for key, rec in kept["recipes"].items():
+            # replaced when this run's recipe of the same key has trained
+            report["recipes"][key] = {**rec, "command": kept["command"]}
+        report["recipes"] = dict(sorted(report["recipes"].items()))
     evaluator = None
     eval_key = jax.random.key(args.eval_seed)
     for key in args.recipes:
@@ -238,6 +300,7 @@ def main(argv=None) -> int:
         rec = {"name": name, "driver": driver, "randomize": randomize, "train_s": seconds,
                "env_steps": env_steps}  # fmt: skip
         report["recipes"][key] = rec
+        report["recipes"] = dict(sorted(report["recipes"].items()))
         print(f"{key} ({name}): {env_steps:.3g} env steps in {seconds:.0f} s", flush=True)
         write(out_dir, report)
         if evaluator is None:
@@ -255,6 +318,9 @@ def main(argv=None) -> int:
         rec["eval"] = {
             f"{v} rad/s": run(velocity=v, randomization=RandomizeConfig()) for v in VELOCITIES
         }
+        # the real driver on the nominal model (every range collapsed): separates the
+        # driver's effect from the randomisation's
+        rec["nominal"] = run(velocity=args.sweep_velocity, randomization=NOMINAL)
         v = args.sweep_velocity
         rec["latency"] = {
             str(k): run(velocity=v, randomization=RandomizeConfig(latency_steps=(k, k)))

@@ -64,6 +64,21 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
     return None
 
 
+def test_every_subpackage_is_installed():
+    """pyproject's explicit package list names every package folder of mara_mjx (a
+    missing one installs without its modules: the plain-install test fails only where
+    wheels can be built, so this check runs everywhere)."""
+    import tomllib
+
+    listed = set(
+        tomllib.loads((PACKAGE.parent / "pyproject.toml").read_text())["tool"]["setuptools"][
+            "packages"
+        ]
+    )
+    found = {_module_name(p) for p in PACKAGE.rglob("__init__.py")}
+    assert found <= listed, f"add {sorted(found - listed)} to [tool.setuptools] packages"
+
+
 def test_no_import_cycles():
     graph = import_graph()
     # a package's __init__ re-exporting its modules is not a cycle with them: drop the
