@@ -20,6 +20,15 @@ os.environ["MARA_MJX_COMPILATION_CACHE"] = "0"
 # tests call them in-process, and a config change mid-session would retrace every
 # jitted function of the session (the retrace guard below would fail). Set it as they do.
 os.environ["JAX_DEFAULT_MATMUL_PRECISION"] = "highest"
+# Compile speed: nearly all of the suite's time is XLA compiling programs that then run a
+# few steps. LLVM at O0 cuts that CPU time by about a third (a tiny training CLI run: 60 s
+# -> 37 s of CPU) and changes results only in their last bits (benchmarks/NOTES.md
+# section 15). The tests compare runs with each other, all compiled alike (subprocesses
+# inherit XLA_FLAGS); the one bit-for-bit check against recorded values
+# (test_envs.py::test_fixed_target_tasks_are_unchanged_bit_for_bit) runs in its own
+# process without these flags, as users compile.
+FAST_COMPILE_FLAGS = "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
+os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {FAST_COMPILE_FLAGS}".strip()
 
 import functools  # noqa: E402
 

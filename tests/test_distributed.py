@@ -24,6 +24,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import FAST_COMPILE_FLAGS
 
 from mara_mjx import distributed
 from mara_mjx.cli import UserError
@@ -124,7 +125,7 @@ def env_vars(tmp_path_factory) -> dict[str, str]:
         "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
         "PYTHONUNBUFFERED": "1",
     }
-    env.pop("XLA_FLAGS", None)
+    env["XLA_FLAGS"] = FAST_COMPILE_FLAGS  # as the suite (conftest.py), no device count
     for name in distributed.ENV_VARS.values():
         env.pop(name, None)
     return env
@@ -184,7 +185,10 @@ def runs(env_vars, tmp_path_factory):
     reference = subprocess.Popen(
         [sys.executable, "-c", REFERENCE, str(TESTS)],
         cwd=REPO,
-        env={**env_vars, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"},
+        env={
+            **env_vars,
+            "XLA_FLAGS": f"--xla_force_host_platform_device_count=2 {FAST_COMPILE_FLAGS}",
+        },
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

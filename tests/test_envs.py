@@ -1,13 +1,15 @@
 """The four tasks: jitted smoke with retrace guards, observation layout, rules, errors."""
 
-import importlib.util
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import TASK_NAMES, jitted
+from conftest import FAST_COMPILE_FLAGS, TASK_NAMES, jitted
 
 import mara_mjx
 from mara_mjx.envs.base import DEFAULT_TARGET_POS, METRIC_KEYS
@@ -206,28 +208,37 @@ def test_target_override_is_used():
 
 
 # ------------------------------------- unchanged since the random-target tasks came
-def _golden_module():
-    spec = importlib.util.spec_from_file_location("golden", DATA / "fixed_target_golden.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+@pytest.fixture(scope="module")
+def as_users_compile(tmp_path_factory) -> dict[str, np.ndarray]:
+    """tests/data/fixed_target_golden.py's rollouts of the current code, in a process
+    with XLA's default optimisation (not the suite's FAST_COMPILE_FLAGS, conftest.py)."""
+    out = tmp_path_factory.mktemp("golden") / "now.npz"
+    flags = os.environ.get("XLA_FLAGS", "").replace(FAST_COMPILE_FLAGS, "").strip()
+    proc = subprocess.run(
+        [sys.executable, str(DATA / "fixed_target_golden.py"), str(out)],
+        cwd=DATA.parents[1],
+        env={**os.environ, "XLA_FLAGS": flags, "PYTHONPATH": str(DATA.parents[1])},
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    return dict(np.load(out))
 
 
 @pytest.mark.parametrize("name", TASK_NAMES)
-def test_fixed_target_tasks_are_unchanged_bit_for_bit(name):
+def test_fixed_target_tasks_are_unchanged_bit_for_bit(name, as_users_compile):
     """Reset and 4 steps (one colliding) of each fixed task give the arrays recorded on
     commit c6cf3b4, before the random-target tasks (tests/data/fixed_target_golden.py)."""
-    golden_module = _golden_module()
     golden = np.load(DATA / "fixed_target_golden.npz")
-    j = jitted(name)
-    got = golden_module.rollout(j.reset, j.step, j.env.make_params(reset_noise=0.1))
-    assert set(j.env.metric_keys) == set(METRIC_KEYS)  # no new metrics either
-    same_platform = (
-        str(golden["jax_version"]) == jax.__version__
-        and str(golden["backend"]) == jax.default_backend()
-    )
-    for key, value in got.items():
-        expected = golden[f"{name}/{key}"]
+    assert set(mara_mjx.make(name).metric_keys) == set(METRIC_KEYS)  # no new metrics either
+    same_platform = str(golden["jax_version"]) == str(as_users_compile["jax_version"]) and str(
+        golden["backend"]
+    ) == str(as_users_compile["backend"])
+    keys = [k.split("/", 1)[1] for k in golden.files if k.startswith(f"{name}/")]
+    assert keys and {f"{name}/{k}" for k in keys} <= set(as_users_compile)
+    for key in keys:
+        value, expected = as_users_compile[f"{name}/{key}"], golden[f"{name}/{key}"]
         if same_platform:
             np.testing.assert_array_equal(value, expected, err_msg=f"{name} {key}")
         else:  # another XLA may round the last bit differently

@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import FAST_COMPILE_FLAGS
 
 from mara_mjx import sharding
 
@@ -69,7 +70,10 @@ print(json.dumps({"devices": [e1, f1, e4, f4], "param_diff": param_diff, "obs_di
 
 @pytest.fixture(scope="module")
 def four_devices():
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4"}
+    env = {
+        **os.environ,
+        "XLA_FLAGS": f"--xla_force_host_platform_device_count=4 {FAST_COMPILE_FLAGS}",
+    }
     env["JAX_PLATFORMS"] = "cpu"
     tests = str(Path(__file__).resolve().parent)
     out = subprocess.run(
