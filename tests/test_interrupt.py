@@ -61,7 +61,7 @@ def test_ctrl_c_mid_training_writes_a_checkpoint_and_resumes(cli_env, tmp_path):
     assert 3 <= done < 200
     assert [int(r["update"]) for r in read_rows(csv_path)] == list(range(1, done + 1))
 
-    resumed = run_module(cli_env, "mara_mjx.train", "--resume", str(out), *QUIET[:4])
+    resumed = run_module(cli_env, "mara_mjx.train", "--resume", str(out), *QUIET)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert [int(r["update"]) for r in read_rows(csv_path)] == list(range(1, 201))
 
@@ -82,7 +82,7 @@ def test_run_stopped_before_its_first_checkpoint_can_start_over(cli_env, tmp_pat
     assert proc.returncode == 130, err[-3000:]
     assert "Traceback" not in err
     assert ckpt.list_checkpoints(out), err[-3000:]
-    resumed = run_module(cli_env, "mara_mjx.train", "--resume", str(out), "--progress", "false")
+    resumed = run_module(cli_env, "mara_mjx.train", "--resume", str(out), *QUIET)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert [int(r["update"]) for r in read_rows(out / "progress.csv")] == list(range(1, 201))
 

@@ -17,7 +17,8 @@ REACH = jnp.array([1.3338, -1.5341, -0.7833, 0.0, 2.3903, -0.237])
 
 @pytest.fixture(scope="module")
 def episode():
-    env = mara_mjx.make("MARACollision", driver="real")
+    # a 256-step horizon (12.8 s of worst-case reversals): a whole episode, to truncation
+    env = mara_mjx.make("MARACollision", driver="real", max_episode_steps=256)
     lo, hi = jnp.asarray(env.joint_lower), jnp.asarray(env.joint_upper)
 
     @jax.jit
