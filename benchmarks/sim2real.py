@@ -56,18 +56,7 @@ RECIPES = {
 LATENCIES = (0, 1, 2, 3)
 OFFSETS_MRAD = (0.0, 0.5, 1.0, 2.0, 4.0)
 VELOCITIES = (0.3, 0.5)
-NOMINAL = RandomizeConfig(
-    mass_scale=(1.0, 1.0),
-    inertia_scale=(1.0, 1.0),
-    damping=(0.0, 0.0),
-    frictionloss=(0.0, 0.0),
-    armature_scale=(1.0, 1.0),
-    kp_scale=(1.0, 1.0),
-    kv_scale=(1.0, 1.0),
-    calibration_offset=0.0,
-    obs_noise_std=0.0,
-    latency_steps=(0, 0),
-)
+NOMINAL = RandomizeConfig.off()  # every range at the nominal model
 
 
 def parse_args(argv=None) -> argparse.Namespace:

@@ -10,22 +10,14 @@ from __future__ import annotations
 
 import signal
 import subprocess
-import sys
 
-from test_train_cli import REPO, TINY, read_rows, run_module
+from test_train_cli import TINY, read_rows, run_module, start_module
 
 from mara_mjx.ppo import checkpoint as ckpt
 
 
 def _start_train(env: dict[str, str], *args: str) -> subprocess.Popen:
-    return subprocess.Popen(
-        [sys.executable, "-m", "mara_mjx.train", *args],
-        cwd=REPO,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    return start_module(env, "mara_mjx.train", *args)
 
 
 def _wait_for(predicate, proc: subprocess.Popen, timeout: float = 300.0) -> None:

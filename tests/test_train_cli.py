@@ -50,6 +50,18 @@ def run_module(env: dict[str, str], module: str, *args: str) -> subprocess.Compl
     )
 
 
+def start_module(env: dict[str, str], module: str, *args: str) -> subprocess.Popen:
+    """`python -m module args` in the background (run_module's counterpart)."""
+    return subprocess.Popen(
+        [sys.executable, "-m", module, *args],
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
 @pytest.fixture(scope="session")
 def trained(cli_env, tmp_path_factory):
     """(run folder, completed process) of the tiny training run."""
@@ -66,14 +78,7 @@ def real_driver_eval(trained, cli_env, tmp_path_factory):
     out, _ = trained
     report = tmp_path_factory.mktemp("real") / "eval-real.json"
     args = [str(out), "--driver", "real", "--velocity", "0.3", "--json", str(report)]
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "mara_mjx.evaluate", *args],
-        cwd=REPO,
-        env=cli_env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    proc = start_module(cli_env, "mara_mjx.evaluate", *args)
     yield proc, report
     if proc.poll() is None:
         proc.kill()
