@@ -101,6 +101,9 @@ VARIANTS = {
         "init_log_std": -1.0,
         "train_reward": "",
     },
+    # the noise over the TCP's displacement, mapped to joint targets by damped least
+    # squares (PPOConfig.exploration, mara_mjx/ppo/actions.py); otherwise the default
+    "task": {"exploration": "task"},
     "curr_half_nobound": {
         "canonical_quat": True,
         "bound_coef": 0.0,
@@ -119,7 +122,8 @@ def parse_variant(name: str) -> dict:
     out = {}
     for part in name.split(";"):
         k, v = part.split("=", 1)
-        out[k] = json.loads(v)
+        value = json.loads(v)
+        out[k] = tuple(value) if isinstance(value, list) else value
     return out
 
 
