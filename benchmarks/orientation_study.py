@@ -101,9 +101,6 @@ VARIANTS = {
         "init_log_std": -1.0,
         "train_reward": "",
     },
-    # the noise over the TCP's displacement, mapped to joint targets by damped least
-    # squares (PPOConfig.exploration, mara_mjx/ppo/actions.py); otherwise the default
-    "task": {"exploration": "task"},
     "curr_half_nobound": {
         "canonical_quat": True,
         "bound_coef": 0.0,
@@ -123,7 +120,7 @@ def parse_variant(name: str) -> dict:
     for part in name.split(";"):
         k, v = part.split("=", 1)
         value = json.loads(v)
-        out[k] = tuple(value) if isinstance(value, list) else value
+        out[k] = tuple(value) if isinstance(value, list) else value  # tuple fields
     return out
 
 

@@ -19,9 +19,7 @@ from typing import Any, Literal
 from mara_mjx.config import ConfigMixin as _ConfigMixin
 from mara_mjx.config import check_int as _check_int
 from mara_mjx.config import check_range as _check_range
-from mara_mjx.config import is_finite
 from mara_mjx.config import is_int as _is_int
-from mara_mjx.ppo.actions import EXPLORATION_SPACES
 
 LR_SCHEDULES = ("linear", "exp", "constant")
 # The optimiser's step counter is an int32 inside the jitted update.
@@ -86,24 +84,6 @@ class PPOConfig(_ConfigMixin):
     """The Gaussian mean is the current joint positions (the observation's first entries)
     plus the actor's output, instead of the actor's output alone (baselines). The env's
     action is still absolute joint targets; only the policy's parametrisation changes."""
-    exploration: Literal["joint", "task"] = "joint"
-    """Where the Gaussian's noise lives (mara_mjx.ppo.actions). 'joint': independent noise
-    per joint target (baselines). 'task': independent noise per coordinate of the TCP's
-    displacement (translation x, y, z and rotation x, y, z, world frame, in units of
-    task_scale), mapped to joint targets through a damped least-squares step of the arm's
-    Jacobian; the mean is the same joint-space policy. Joint noise moves the TCP more in
-    some arm configurations than in others, so PPO, which maximises the reward averaged
-    over its noise, trades orientation for configurations its noise disturbs less
-    (benchmarks/NOTES.md, section 17); task-space noise is the same in every configuration.
-    'task' needs relative_actions and a MARA env (observation starting with the six joint
-    positions, six joint-target actions)."""
-    task_scale: tuple[float, float] = (0.1, 0.5)
-    """exploration 'task': the TCP displacement of one noise unit, (metres, rad) for the
-    translation and the rotation coordinates; the log-std is in these units."""
-    task_damping: float = 0.5
-    """exploration 'task': lambda of the damped least-squares step, in noise units; the
-    joint step per unit is at most 1 / (2 lambda) rad near singular configurations (the
-    reset pose, arm straight up, is one)."""
     hidden_obs: tuple[int, ...] = ()
     """Observation indices that neither network sees (set to 0 after normalisation), e.g.
     9 10 11 for the TCP velocity of MARA/MARACollision (13 14 15 for the Orient tasks)."""
@@ -207,24 +187,6 @@ class PPOConfig(_ConfigMixin):
             raise ValueError(
                 f"hidden_obs={self.hidden_obs!r} must be a tuple of observation indices >= 0"
             )
-        if self.exploration not in EXPLORATION_SPACES:
-            raise ValueError(
-                f"exploration={self.exploration!r} is not valid; choose one of {EXPLORATION_SPACES}"
-            )
-        if (
-            not isinstance(self.task_scale, tuple)
-            or len(self.task_scale) != 2
-            or not all(is_finite(v) and v > 0 for v in self.task_scale)
-        ):
-            raise ValueError(
-                f"task_scale={self.task_scale!r} must be two positive numbers (metres, rad)"
-            )
-        _check_range("task_damping", self.task_damping, 0.0, math.inf, low_open=True)
-        if self.exploration == "task" and not self.relative_actions:
-            raise ValueError(
-                "exploration='task' maps the policy's joint-space step q + output through the "
-                "arm's Jacobian; set relative_actions true (--relative_actions true)"
-            )
         _check_range("bound_coef", self.bound_coef, 0.0, math.inf)
         _check_range("train_reward_until", self.train_reward_until, 0.0, 1.0, low_open=True)
         _check_range("train_collision_penalty", self.train_collision_penalty, 0.0, math.inf)
@@ -293,14 +255,6 @@ def for_env(config: PPOConfig, env: Any) -> PPOConfig:
     # config says so.
     if not hasattr(getattr(env, "default_params", None), "reward"):
         resolved = resolved.replace(train_reward="", train_collision_penalty=0.0)
-    if resolved.exploration == "task":
-        names = [part.get("name") for part in layout]
-        if not names or names[0] != "q" or getattr(env, "action_size", None) != 6:
-            raise ValueError(
-                "exploration='task' needs a MARA env (observation starting with the six joint "
-                f"positions q, six joint-target actions); this env's observation is "
-                f"{names or 'undescribed'}; use exploration='joint'"
-            )
     return resolved
 
 

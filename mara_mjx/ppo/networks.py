@@ -8,10 +8,8 @@ deviation. The Gaussian mean is the action: joint targets (rad) that the env cli
 the joint limits, either the actor's output itself (`relative_actions=False`, baselines)
 or the current joint positions (the first `action_size` raw observation entries, which
 the MARA observation starts with) plus the actor's output (`relative_actions=True`, so
-that "stay" is the output 0). With `exploration='task'` the Gaussian is over the TCP
-displacement that this joint-space step makes (mara_mjx.ppo.actions). The log-std can be
-floored (`log_std_floor`), and chosen observation entries hidden from both networks
-(`hidden_obs`).
+that "stay" is the output 0). The log-std can be floored (`log_std_floor`), and chosen
+observation entries hidden from both networks (`hidden_obs`).
 
     network = make_network(config, action_size)
     mean, log_std, value = forward(network, params, obs_stats, obs, config.obs_clip)
@@ -27,8 +25,6 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 from flax import struct
-
-from mara_mjx.ppo.actions import twist_mean
 
 
 class MLP(nn.Module):
@@ -56,7 +52,6 @@ class ActorCritic(nn.Module):
     log_std_floor: float = -20.0
     hidden_obs: tuple[int, ...] = ()
     quat_index: int = -1
-    task_scale: tuple[float, float] | None = None  # exploration 'task' (ppo.actions)
 
     @nn.compact
     def __call__(
@@ -71,8 +66,6 @@ class ActorCritic(nn.Module):
             if raw_obs is None:
                 raise ValueError("relative_actions: the network needs the raw observation")
             mean = mean + raw_obs[..., : self.action_size]
-        if self.task_scale is not None:  # the same step as a TCP twist (ppo.actions)
-            mean = twist_mean(raw_obs, mean, self.task_scale)
         value = MLP(self.hidden_sizes, 1, 1.0, name="critic")(obs)[..., 0]
         log_std = self.param(
             "log_std", nn.initializers.constant(self.init_log_std), (self.action_size,)
@@ -102,7 +95,6 @@ def make_network(config: Any, action_size: int) -> ActorCritic:
         config.log_std_floor,
         tuple(config.hidden_obs),
         config.quat_index if config.canonical_quat else -1,
-        tuple(config.task_scale) if config.exploration == "task" else None,
     )
 
 

@@ -1,9 +1,8 @@
 """The policy artefact and its one factory, `make_policy`.
 
 A policy is params + config (+ observation statistics when the run normalised them). The
-deterministic policy is the Gaussian mean, as absolute joint targets (rad) for the env,
-which clips them to the joint limits (with action_space 'task' the mean is a twist that
-`mara_mjx.ppo.actions.env_action` turns into joint targets).
+deterministic policy is the Gaussian mean: absolute joint targets (rad) for the env,
+which clips them to the joint limits.
 
     policy = make_policy("runs/MARA-.../checkpoints/ckpt_00000100.npz")   # or load_policy
     action = policy(obs)                       # (obs_size,) or (N, obs_size) -> (..., 6)
@@ -21,7 +20,6 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from mara_mjx.ppo.actions import env_action
 from mara_mjx.ppo.checkpoint import (
     CheckpointError,
     arrays_to_state,
@@ -46,17 +44,11 @@ class Policy:
         return make_network(self.config, self.action_size)
 
     def __call__(self, obs: jax.Array) -> jax.Array:
-        """obs (..., obs_size) raw -> the env's action (..., 6): joint targets, rad."""
-        return self.env_action(obs, self.distribution(obs)[0])
-
-    def env_action(self, obs: jax.Array, action: jax.Array) -> jax.Array:
-        """The env's action for a point `action` of the Gaussian's space taken at `obs` (the
-        identity unless config.action_space is 'task': mara_mjx.ppo.actions)."""
-        return env_action(self.config, obs, action)
+        """obs (..., obs_size) raw -> action (..., action_size) rad."""
+        return self.distribution(obs)[0]
 
     def distribution(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """Gaussian (mean, log_std), each (..., action_size), for stochastic use: a sample
-        goes to the env through `env_action`."""
+        """Gaussian (mean, log_std), each (..., action_size), for stochastic use."""
         mean, log_std, _ = forward(
             self.network, self.params, self.obs_stats, obs, self.config.obs_clip
         )

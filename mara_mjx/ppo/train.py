@@ -39,7 +39,6 @@ from jax.flatten_util import ravel_pytree
 
 from mara_mjx import sharding
 from mara_mjx.envs.batched import BatchedEnv, BatchedState
-from mara_mjx.ppo.actions import env_action
 from mara_mjx.ppo.config import PPOConfig, for_env, reward_curriculum
 from mara_mjx.ppo.losses import gae, ppo_loss
 from mara_mjx.ppo.networks import (
@@ -71,8 +70,7 @@ class Transition(NamedTuple):
     """One rollout step of all envs; a rollout stacks them to (T, N, ...)."""
 
     obs: jax.Array  # (N, obs) observation acted on (raw, not normalised)
-    action: jax.Array  # (N, A) the Gaussian's sample (joint targets, rad, before the env
-    # clips them; or a twist with action_space 'task': ppo.actions)
+    action: jax.Array  # (N, A) rad, sampled joint targets (before the env clips them)
     log_prob: jax.Array  # (N,)
     reward: jax.Array  # (N,)
     terminated: jax.Array  # (N,) bool
@@ -207,7 +205,7 @@ def make_train(
             sample = mean + jnp.exp(log_std) * jax.random.normal(noise_key, mean.shape)
             probe = t == config.num_steps
             action = jnp.where(probe, mean, sample)
-            next_state = benv.step(env_state, env_action(config, env_state.obs, action))
+            next_state = benv.step(env_state, action)
             transition = Transition(
                 obs=env_state.obs,
                 action=action,
@@ -252,8 +250,7 @@ def make_train(
             normalize_advantages=False,  # done per minibatch over all devices in sgd()
         )
         if config.bound_coef > 0.0:  # keep the mean where the env does not clip it
-            command = env_action(config, mb.obs, mean)
-            excess = jax.nn.relu(command - upper) + jax.nn.relu(lower - command)
+            excess = jax.nn.relu(mean - upper) + jax.nn.relu(lower - mean)
             total = total + config.bound_coef * jnp.mean(jnp.sum(jnp.square(excess), axis=-1))
         return total, info
 
