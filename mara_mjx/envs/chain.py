@@ -3,8 +3,8 @@
 MJX stays the model and the reference (`Arm.pose`, tests/test_chain.py checks this module
 against `mjx.kinematics` and C MuJoCo): this is the same serial-chain recursion as
 MuJoCo's `mj_kinematics` for a tree of bodies with one hinge each, written out for the
-six bodies of the arm so that code outside the env (the policy's task-space action map,
-`mara_mjx.ppo.task_space`) can use the arm's kinematics at a few hundred FLOPs per
+six bodies of the arm so that code outside the env (the reward-landscape analysis of
+benchmarks/orientation_landscape.py) can use the arm's kinematics at a few hundred FLOPs per
 configuration, without building an `mjx.Data`.
 
 For body i with parent p, offset (pos_i, quat_i) in p's frame and hinge axis a_i at
