@@ -133,17 +133,26 @@ def add_cache_argument(parser: argparse.ArgumentParser, default: str = "true") -
     )
 
 
-def configure_jax(compilation_cache: str | bool | None = None) -> Path | None:
-    """Full-precision float32 matmuls, deterministic GPU reductions and the persistent
+def configure_jax(
+    compilation_cache: str | bool | None = None, real_driver: bool = True
+) -> Path | None:
+    """Full-precision float32 matmuls, bitwise reproducible GPU programs and the persistent
     compilation cache, before anything compiles.
 
     * On GPUs JAX's default matmul precision may be TF32, which silently degrades the MJX
       kinematics and training. JAX_DEFAULT_MATMUL_PRECISION, if set, wins.
-    * XLA's GPU scatter and reduction kernels may sum in a different order on every run,
-      and PPO amplifies such last-bit differences into different policies: the same seed
-      gave 116 mm and 4.9 mm final errors on the H200 (benchmarks/NOTES.md). So
-      `--xla_gpu_deterministic_ops=true` is added to XLA_FLAGS unless XLA_FLAGS already
-      sets it (set it to false there to trade reproducibility for speed).
+    * Reproducibility: PPO amplifies last-bit differences into different policies (the
+      same seed gave 116 mm and 4.9 mm final errors on an H200, benchmarks/NOTES.md
+      section 5). Measured on an H100 (NOTES section 14): a compiled train-driver program
+      repeats itself bit for bit; what differed between processes was the kernels that
+      XLA's autotuner picked at compile time. So `--xla_gpu_autotune_level=0` (the same
+      kernels in every compile) makes runs reproducible at 96% of the fastest speed,
+      where `--xla_gpu_deterministic_ops=true` costs half of it (it also serialises
+      scatters XLA cannot prove free of races: MJX kinematics'). The real driver's
+      dynamics (`mjx.step`) do sum floats with scatter-adds, which GPUs run with atomics:
+      with `real_driver` (the callers' worst case when the driver is not known yet),
+      `--xla_gpu_deterministic_ops=true` is added as before. Nothing is added when
+      XLA_FLAGS already names either flag.
     * JAX's persistent compilation cache, on unless `compilation_cache` (the
       `--compilation_cache` flag; None: not given) or MARA_MJX_COMPILATION_CACHE turns it
       off (`mara_mjx.jax_cache`). Returns the cache folder in use, or None.
@@ -159,9 +168,34 @@ def configure_jax(compilation_cache: str | bool | None = None) -> Path | None:
     if "JAX_DEFAULT_MATMUL_PRECISION" not in os.environ:
         jax.config.update("jax_default_matmul_precision", "highest")
     flags = os.environ.get("XLA_FLAGS", "")
-    if "xla_gpu_deterministic_ops" not in flags:
-        os.environ["XLA_FLAGS"] = (flags + " --xla_gpu_deterministic_ops=true").strip()
+    if "xla_gpu_deterministic_ops" not in flags and "xla_gpu_autotune_level" not in flags:
+        os.environ["XLA_FLAGS"] = (flags + " " + reproducible_gpu_flags(real_driver)).strip()
     return folder
+
+
+def reproducible_gpu_flags(real_driver: bool) -> str:
+    """The XLA flags `configure_jax` adds for bitwise reproducible GPU runs."""
+    if real_driver:
+        return "--xla_gpu_deterministic_ops=true"
+    return "--xla_gpu_autotune_level=0"
+
+
+def uses_real_driver(namespace: argparse.Namespace, checkpoint: str | None = None) -> bool:
+    """Whether a CLI run may step the real driver: its `--driver` flag, else the driver of
+    `checkpoint`'s env (a file or run folder; True when it cannot be read: the error is
+    reported later, where the checkpoint is loaded for real)."""
+    given = overrides(namespace, "env").get("driver")
+    if given is not None:
+        return given == "real"
+    if checkpoint is None:
+        return False
+    from mara_mjx.ppo import checkpoint as ckpt
+
+    try:
+        _, meta = ckpt.load_checkpoint(ckpt.find_checkpoint(checkpoint))
+        return meta["env_config"].get("driver", "train") == "real"
+    except Exception:  # unreadable, or a multi-seed run folder: the careful choice
+        return True
 
 
 def run_cli(main: typing.Callable[[list[str] | None], int], prog: str, argv=None) -> int:

@@ -43,6 +43,7 @@ from mara_mjx.cli import (
     env_overrides,
     overrides,
     run_cli,
+    uses_real_driver,
 )
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.envs.random_target import is_random_target
@@ -83,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    configure_jax(args.compilation_cache)
+    configure_jax(args.compilation_cache, uses_real_driver(args, args.checkpoint))
     group = seeds.group_of(args.checkpoint)  # a run of several seeds: every seed's newest
     path = None if group else ckpt.find_checkpoint(args.checkpoint)
     arrays, meta = ckpt.load_checkpoint(path) if path else (None, None)

@@ -47,6 +47,7 @@ from mara_mjx.cli import (
     env_overrides,
     overrides,
     run_cli,
+    uses_real_driver,
 )
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.envs.randomize import RandomizeConfig
@@ -242,7 +243,7 @@ def episode_line(i: int, record: dict[str, Any], orientation: bool, tolerance_mm
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    configure_jax(args.compilation_cache)
+    configure_jax(args.compilation_cache, uses_real_driver(args, args.checkpoint))
     video_path = check_video_args(args)
     path = ckpt.find_checkpoint(args.checkpoint)
     arrays, meta = ckpt.load_checkpoint(path)

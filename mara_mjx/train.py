@@ -67,6 +67,7 @@ from mara_mjx.cli import (
     configure_jax,
     env_overrides,
     overrides,
+    uses_real_driver,
 )
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.envs.randomize import RandomizeConfig
@@ -185,7 +186,7 @@ def _build(what: str, make: Callable[[], Any]) -> Any:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    configure_jax(args.compilation_cache)
+    configure_jax(args.compilation_cache, uses_real_driver(args, args.resume))
     launch = distributed.launch_from(args)
     seeds.check_launch(getattr(args, "run.seeds", 1), args.resume, launch is not None)
     distributed.initialize(launch)  # several processes: see there

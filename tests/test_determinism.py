@@ -13,6 +13,7 @@ flag costs, and whether runs agree bit for bit) is `benchmarks/determinism.py`.
 
 from __future__ import annotations
 
+import os
 import re
 
 import jax
@@ -68,3 +69,50 @@ def test_env_step_has_no_nondeterministic_scatter(orient):
     text = jax.jit(jax.vmap(env.step)).trace(states, actions).lower().as_text()
     assert text.count('"stablehlo.scatter"') > 0  # MJX's kinematics scatter
     assert unsafe_scatters(text) == []
+
+
+def test_real_driver_step_needs_the_deterministic_ops_flag():
+    """The real driver's dynamics (mjx.step) sum floats with scatter-adds: the reason the
+    CLIs still add `--xla_gpu_deterministic_ops` for it (cli.reproducible_gpu_flags). If
+    this starts failing because MJX dropped them, the flag can go for the real driver too."""
+    import mara_mjx
+
+    env = mara_mjx.make("MARA", driver="real")
+    keys = jax.random.split(jax.random.key(0), 2)
+    states = jax.eval_shape(jax.vmap(env.reset), keys)
+    actions = jax.ShapeDtypeStruct((2, env.action_size), jax.numpy.float32)
+    text = jax.jit(jax.vmap(env.step)).trace(states, actions).lower().as_text()
+    assert unsafe_scatters(text) != []
+
+
+def test_the_clis_choose_reproducible_gpu_flags_by_driver(tmp_path, monkeypatch):
+    """Train-driver runs get deterministic compiles (no autotuning) instead of XLA's
+    deterministic ops, real-driver runs (the flag, or a checkpoint trained with it) keep
+    the deterministic ops, and flags the user set in XLA_FLAGS are left alone."""
+    import argparse
+
+    from mara_mjx import cli
+    from mara_mjx.ppo import checkpoint as ckpt
+
+    assert cli.reproducible_gpu_flags(False) == "--xla_gpu_autotune_level=0"
+    assert cli.reproducible_gpu_flags(True) == "--xla_gpu_deterministic_ops=true"
+    plain = argparse.Namespace(**{"env.max_episode_steps": 16})
+    assert not cli.uses_real_driver(plain)
+    assert cli.uses_real_driver(argparse.Namespace(**{"env.driver": "real"}))
+    assert not cli.uses_real_driver(argparse.Namespace(**{"env.driver": "train"}), "x")
+    assert cli.uses_real_driver(plain, str(tmp_path / "missing"))  # unreadable: careful
+    monkeypatch.setattr(ckpt, "find_checkpoint", lambda p: p)
+    for driver in ("train", "real"):  # a checkpoint's env config decides without the flag
+        meta = {"env_config": {"driver": driver}}
+        monkeypatch.setattr(ckpt, "load_checkpoint", lambda p, m=meta: ({}, m))
+        assert cli.uses_real_driver(plain, "ckpt.npz") == (driver == "real")
+    monkeypatch.setenv("MARA_MJX_COMPILATION_CACHE", "0")
+    for given, real, expected in (
+        ("--xla_cpu_foo=1", False, "--xla_cpu_foo=1 --xla_gpu_autotune_level=0"),
+        ("", True, "--xla_gpu_deterministic_ops=true"),
+        ("--xla_gpu_deterministic_ops=false", False, "--xla_gpu_deterministic_ops=false"),
+        ("--xla_gpu_autotune_level=4", True, "--xla_gpu_autotune_level=4"),
+    ):
+        monkeypatch.setenv("XLA_FLAGS", given)
+        cli.configure_jax(None, real_driver=real)
+        assert os.environ["XLA_FLAGS"] == expected
