@@ -22,6 +22,7 @@ Drivers (spec section 5):
 from __future__ import annotations
 
 import contextlib
+import functools
 import importlib.resources
 import io
 import itertools
@@ -152,12 +153,25 @@ class Arm:
         return self._pose(d, self._penetrating(d))
 
     # ---------------------------------------------------------------- drivers
+    def pose_with(self, q: jax.Array, kinematics: str, collide: bool = True) -> ArmPose:
+        """`pose(q, collide)` through MJX ('mjx') or the lean pass ('lean', envs/lean.py)."""
+        if kinematics == "lean":
+            return self.lean.pose(q, collide)
+        return self.pose(q, collide)
+
+    @functools.cached_property
+    def lean(self):
+        """The lean pose-and-collision pass of this model (mara_mjx.envs.lean.LeanArm)."""
+        from mara_mjx.envs.lean import LeanArm  # lean imports ArmPose from here
+
+        return LeanArm.from_model(self.mj_model)
+
     def train_step(
-        self, q: jax.Array, command: jax.Array, control_dt: float
+        self, q: jax.Array, command: jax.Array, control_dt: float, kinematics: str = "mjx"
     ) -> tuple[jax.Array, jax.Array, ArmPose]:
         """Teleport to `command` (already inside the joint box). Returns q', qvel', pose."""
         qvel = (command - q) / control_dt
-        return command, qvel, self.pose(command)
+        return command, qvel, self.pose_with(command, kinematics)
 
     def real_step(
         self,

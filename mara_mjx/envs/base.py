@@ -82,6 +82,7 @@ class Env(Protocol):
 
 
 DRIVERS = ("train", "real")
+KINEMATICS = ("mjx", "lean")
 DEFAULT_TARGET_POS = (-0.40028, 0.095615, 0.72466)
 DEFAULT_TARGET_QUAT = (0.0, 0.7071068, 0.7071068, 0.0)
 # Random-target tasks (envs/random_target.py): the default working volume, 30 x 50 x 20 cm
@@ -120,6 +121,12 @@ class EnvConfig:
     driver: Literal["train", "real"] = "train"
     """'train': joints reach commands at once (kinematics + collision only, the paper's
     training driver). 'real': velocity-limited position servos and MJX dynamics."""
+    kinematics: Literal["mjx", "lean"] = "mjx"
+    """Train driver: how each step's pose and collision bit are computed. 'mjx':
+    `mjx.kinematics` + `mjx.collision` (the reference). 'lean': the chain's six
+    transforms and the 24 pairs' exact signed distances in plain jnp
+    (mara_mjx/envs/lean.py; TCP pose within 1e-6 of MJX, collision flags as C MuJoCo's,
+    benchmarks/NOTES.md section 17). The real driver always steps MJX."""
     max_episode_steps: int = 1024
     """Horizon: the episode truncates after this many steps."""
     control_dt: float = 0.05
@@ -166,6 +173,15 @@ class EnvConfig:
     def __post_init__(self):
         if self.driver not in DRIVERS:
             raise ValueError(f"driver={self.driver!r} is not valid; choose one of {DRIVERS}")
+        if self.kinematics not in KINEMATICS:
+            raise ValueError(
+                f"kinematics={self.kinematics!r} is not valid; choose one of {KINEMATICS}"
+            )
+        if self.kinematics == "lean" and self.driver != "train":
+            raise ValueError(
+                "kinematics='lean' is the train driver's pass; the real driver steps MJX "
+                "(use kinematics='mjx' with driver='real')"
+            )
         if not isinstance(self.max_episode_steps, int) or isinstance(self.max_episode_steps, bool):
             raise ValueError(
                 f"max_episode_steps must be a positive int, got {self.max_episode_steps!r}"

@@ -108,6 +108,7 @@ class Chain:
     axis: np.ndarray  # (6, 3) unit hinge axis, body frame
     anchor: np.ndarray  # (6, 3) hinge anchor, body frame
     site: np.ndarray  # (3,) the TCP site in the flange body's frame
+    body_ids: tuple[int, ...] = ()  # MuJoCo ids of the six moving bodies, base to flange
 
     @classmethod
     def from_model(cls, m: mujoco.MjModel, site: str = "tcp") -> Chain:
@@ -137,14 +138,15 @@ class Chain:
             axis=np.stack([m.jnt_axis[j] / np.linalg.norm(m.jnt_axis[j]) for j in jnt]),
             anchor=np.stack([m.jnt_pos[j] for j in jnt]),
             site=m.site_pos[m.site(site).id].copy(),
+            body_ids=tuple(bodies),
         )
 
-    def frames(self, q: jnp.ndarray):
-        """q (6,) rad -> (flange origin (3,), flange rotation (3, 3), xaxis (6, 3),
-        xanchor (6, 3)), world frame."""
+    def body_frames(self, q: jnp.ndarray):
+        """q (6,) rad -> each moving body's origin (6, 3) and rotation (6, 3, 3), the joint
+        axes xaxis (6, 3) and anchors xanchor (6, 3), world frame."""
         x = jnp.asarray(self.base_pos, jnp.float32)
         rot = jnp.asarray(self.base_rot, jnp.float32)
-        axes, anchors = [], []
+        xs, rots, axes, anchors = [], [], [], []
         for i in range(6):
             rot_pre = rot @ jnp.asarray(self.body_rot[i], jnp.float32)
             axis_w = rot_pre @ jnp.asarray(self.axis[i], jnp.float32)
@@ -152,9 +154,17 @@ class Chain:
             anchor_w = anchor_w + rot_pre @ jnp.asarray(self.anchor[i], jnp.float32)
             rot = rot_pre @ _rodrigues(jnp.asarray(self.axis[i], jnp.float32), q[i])
             x = anchor_w - rot @ jnp.asarray(self.anchor[i], jnp.float32)
+            xs.append(x)
+            rots.append(rot)
             axes.append(axis_w)
             anchors.append(anchor_w)
-        return x, rot, jnp.stack(axes), jnp.stack(anchors)
+        return jnp.stack(xs), jnp.stack(rots), jnp.stack(axes), jnp.stack(anchors)
+
+    def frames(self, q: jnp.ndarray):
+        """q (6,) rad -> (flange origin (3,), flange rotation (3, 3), xaxis (6, 3),
+        xanchor (6, 3)), world frame."""
+        xs, rots, axes, anchors = self.body_frames(q)
+        return xs[-1], rots[-1], axes, anchors
 
     def tcp(self, q: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
         """q (6,) -> TCP position (3,) m and flange orientation (4,) (w, x, y, z), w >= 0,

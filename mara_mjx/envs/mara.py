@@ -204,7 +204,7 @@ class MaraEnv:
         q = noise * params.reset_noise
         # The reset pose is collision-free (tests check it for the largest reset_noise),
         # so reset runs kinematics only: auto-reset then costs little.
-        pose = self.arm.pose(q, collide=False)
+        pose = self.arm.pose_with(q, self.config.kinematics, collide=False)
         history = None
         if self.randomizer is None:
             obs, metrics, _ = self._observe(q, pose, jnp.zeros(6), params)
@@ -265,7 +265,7 @@ class MaraEnv:
                     model = randomizer.model(self.arm.mjx_model, params.randomization)
 
         if cfg.driver == "train":
-            q, qvel, pose = self.arm.train_step(state.q, command, cfg.control_dt)
+            q, qvel, pose = self.arm.train_step(state.q, command, cfg.control_dt, cfg.kinematics)
             ref = command
         else:
             q, qvel, ref, pose = self.arm.real_step(
@@ -332,7 +332,7 @@ class MaraEnv:
         with measured_kinematics e, quat_err, v from the forward kinematics of that q."""
         q_meas = self.randomizer.measure(key, q, params.randomization)
         if self.config.randomization.measured_kinematics:
-            pose = self.arm.pose(q_meas, collide=False)
+            pose = self.arm.pose_with(q_meas, self.config.kinematics, collide=False)
             obs, _, _ = self._observe(q_meas, pose, qvel, params)
             return obs, q_meas
         return obs.at[:6].set(q_meas), q_meas
