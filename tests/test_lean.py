@@ -95,5 +95,4 @@ def test_a_task_with_lean_kinematics_steps_like_mjx():
 def test_lean_kinematics_config_errors():
     with pytest.raises(ValueError, match="kinematics='cuda' is not valid; choose one of"):
         mara_mjx.make("MARA", kinematics="cuda")
-    with pytest.raises(ValueError, match="real driver steps MJX"):
-        mara_mjx.make("MARA", kinematics="lean", driver="real")
+    assert mara_mjx.make("MARA", driver="real").kinematics == "mjx"  # lean: train driver

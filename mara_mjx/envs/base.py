@@ -121,12 +121,14 @@ class EnvConfig:
     driver: Literal["train", "real"] = "train"
     """'train': joints reach commands at once (kinematics + collision only, the paper's
     training driver). 'real': velocity-limited position servos and MJX dynamics."""
-    kinematics: Literal["mjx", "lean"] = "mjx"
-    """Train driver: how each step's pose and collision bit are computed. 'mjx':
-    `mjx.kinematics` + `mjx.collision` (the reference). 'lean': the chain's six
-    transforms and the 24 pairs' exact signed distances in plain jnp
-    (mara_mjx/envs/lean.py; TCP pose within 1e-6 of MJX, collision flags as C MuJoCo's,
-    benchmarks/NOTES.md section 17). The real driver always steps MJX."""
+    kinematics: Literal["mjx", "lean"] = "lean"
+    """Train driver: how each step's pose and collision bit are computed. 'lean' (the
+    default): the chain's six transforms and the 24 pairs' exact signed distances in
+    plain jnp (mara_mjx/envs/lean.py; TCP pose within 1e-6 m of MJX's, collision flags
+    as C MuJoCo's beyond float32 precision of contact, where MJX's capsule-box test
+    differs; 1.4x the env steps/s and a faster compile: benchmarks/NOTES.md section 17).
+    'mjx': `mjx.kinematics` + `mjx.collision`, the reference. The real driver steps MJX
+    whatever this says."""
     max_episode_steps: int = 1024
     """Horizon: the episode truncates after this many steps."""
     control_dt: float = 0.05
@@ -176,11 +178,6 @@ class EnvConfig:
         if self.kinematics not in KINEMATICS:
             raise ValueError(
                 f"kinematics={self.kinematics!r} is not valid; choose one of {KINEMATICS}"
-            )
-        if self.kinematics == "lean" and self.driver != "train":
-            raise ValueError(
-                "kinematics='lean' is the train driver's pass; the real driver steps MJX "
-                "(use kinematics='mjx' with driver='real')"
             )
         if not isinstance(self.max_episode_steps, int) or isinstance(self.max_episode_steps, bool):
             raise ValueError(

@@ -103,6 +103,8 @@ class MaraEnv:
         self.task = task
         self.config = config if config is not None else default_config(task)
         cfg = self.config
+        # the lean pass is the train driver's; the real driver's poses come from MJX
+        self.kinematics = cfg.kinematics if cfg.driver == "train" else "mjx"
         self.arm = _shared_arm(frictionloss=cfg.randomize and cfg.driver == "real")
         # None: no randomisation, every step exactly the nominal env's
         self.randomizer = rnd.Randomizer(self.arm, cfg.randomization) if cfg.randomize else None
@@ -204,7 +206,7 @@ class MaraEnv:
         q = noise * params.reset_noise
         # The reset pose is collision-free (tests check it for the largest reset_noise),
         # so reset runs kinematics only: auto-reset then costs little.
-        pose = self.arm.pose_with(q, self.config.kinematics, collide=False)
+        pose = self.arm.pose_with(q, self.kinematics, collide=False)
         history = None
         if self.randomizer is None:
             obs, metrics, _ = self._observe(q, pose, jnp.zeros(6), params)
@@ -265,7 +267,7 @@ class MaraEnv:
                     model = randomizer.model(self.arm.mjx_model, params.randomization)
 
         if cfg.driver == "train":
-            q, qvel, pose = self.arm.train_step(state.q, command, cfg.control_dt, cfg.kinematics)
+            q, qvel, pose = self.arm.train_step(state.q, command, cfg.control_dt, self.kinematics)
             ref = command
         else:
             q, qvel, ref, pose = self.arm.real_step(
@@ -332,7 +334,7 @@ class MaraEnv:
         with measured_kinematics e, quat_err, v from the forward kinematics of that q."""
         q_meas = self.randomizer.measure(key, q, params.randomization)
         if self.config.randomization.measured_kinematics:
-            pose = self.arm.pose_with(q_meas, self.config.kinematics, collide=False)
+            pose = self.arm.pose_with(q_meas, self.kinematics, collide=False)
             obs, _, _ = self._observe(q_meas, pose, qvel, params)
             return obs, q_meas
         return obs.at[:6].set(q_meas), q_meas

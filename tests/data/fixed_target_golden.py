@@ -12,6 +12,7 @@ tasks changed.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 
 import jax
@@ -49,8 +50,13 @@ def rollout(reset, step, params) -> dict[str, np.ndarray]:
 
 def main(path: str) -> None:
     arrays = {}
+    # The MJX path, which the recording used: since the lean pass became the train
+    # driver's default (EnvConfig.kinematics) it is chosen explicitly; the lean pass is
+    # checked against MJX in tests/test_lean.py. (The recording's code had no such flag.)
+    config_names = {f.name for f in dataclasses.fields(mara_mjx.EnvConfig)}
+    mjx = {"kinematics": "mjx"} if "kinematics" in config_names else {}
     for name in TASKS:
-        env = mara_mjx.make(name)
+        env = mara_mjx.make(name, **mjx)
         params = env.make_params(reset_noise=0.1)
         for k, v in rollout(jax.jit(env.reset), jax.jit(env.step), params).items():
             arrays[f"{name}/{k}"] = v
