@@ -25,7 +25,7 @@ import numpy as np
 
 import mara_mjx
 from mara_mjx import rewards
-from mara_mjx.envs.chain import mara_chain
+from mara_mjx.envs.chain import Chain
 from mara_mjx.envs.geometry import quat_canonical, quat_conj, quat_mul
 
 
@@ -42,7 +42,7 @@ def main() -> None:
 
     env = mara_mjx.make(args.task)
     params = env.default_params
-    chain = mara_chain()
+    chain = Chain.from_model(env.arm.mj_model)
     lower, upper = jnp.asarray(env.joint_lower), jnp.asarray(env.joint_upper)
 
     def pose_error(q):

@@ -7,14 +7,14 @@ import mujoco
 import numpy as np
 
 from mara_mjx.envs.arm import Arm
-from mara_mjx.envs.chain import mara_chain
+from mara_mjx.envs.chain import Chain
 
 
 def test_chain_matches_mjx_and_c_mujoco():
     """TCP position, flange quaternion (w >= 0) and the geometric Jacobian of 200 random
     configurations inside the joint limits, to 1e-5."""
     arm = Arm()
-    chain = mara_chain()
+    chain = Chain.from_model(arm.mj_model)
     qs = np.random.default_rng(0).uniform(arm.lower, arm.upper, size=(200, 6)).astype(np.float32)
     pose = jax.jit(jax.vmap(lambda q: arm.pose(q, collide=False)))(qs)
     tcp_pos, tcp_quat = jax.jit(jax.vmap(chain.tcp))(qs)

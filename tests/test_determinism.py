@@ -61,14 +61,19 @@ def test_ppo_update_has_no_nondeterministic_scatter():
     assert unsafe_scatters(text) == []
 
 
-def test_env_step_has_no_nondeterministic_scatter(orient):
-    env = orient.env
-    keys = jax.random.split(jax.random.key(0), 2)
-    states = jax.eval_shape(jax.vmap(env.reset), keys)
-    actions = jax.ShapeDtypeStruct((2, env.action_size), jax.numpy.float32)
-    text = jax.jit(jax.vmap(env.step)).trace(states, actions).lower().as_text()
-    assert text.count('"stablehlo.scatter"') > 0  # MJX's kinematics scatter
-    assert unsafe_scatters(text) == []
+def test_env_step_has_no_nondeterministic_scatter():
+    """The train driver's step through MJX (its kinematics scatter, safely) and through the
+    default lean pass (no scatter at all)."""
+    import mara_mjx
+
+    for kinematics, scatters in (("mjx", True), ("lean", False)):
+        env = mara_mjx.make("MARACollisionOrient", kinematics=kinematics)
+        keys = jax.random.split(jax.random.key(0), 2)
+        states = jax.eval_shape(jax.vmap(env.reset), keys)
+        actions = jax.ShapeDtypeStruct((2, env.action_size), jax.numpy.float32)
+        text = jax.jit(jax.vmap(env.step)).trace(states, actions).lower().as_text()
+        assert (text.count('"stablehlo.scatter"') > 0) == scatters
+        assert unsafe_scatters(text) == []
 
 
 def test_real_driver_step_needs_the_deterministic_ops_flag():

@@ -27,7 +27,6 @@ import importlib.resources
 import io
 import itertools
 from pathlib import Path
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -40,6 +39,8 @@ with contextlib.redirect_stdout(io.StringIO()):
     from mujoco import mjx
 
 from mara_mjx.envs.geometry import quat_canonical
+from mara_mjx.envs.lean import LeanArm
+from mara_mjx.envs.pose import ArmPose
 
 
 def asset_path(name: str) -> Path:
@@ -59,15 +60,6 @@ JOINTS = ("motor1", "motor2", "motor3", "motor4", "motor5", "motor6")
 # Joint velocity limit of the MARA servos (spec section 1): 1.57 rad/s = 90 deg/s.
 MAX_JOINT_SPEED = 1.57
 TABLE_TOP_Z = 0.645
-
-
-class ArmPose(NamedTuple):
-    """What the tasks need from one kinematics pass."""
-
-    tcp_pos: jax.Array  # (3,) m, world frame
-    tcp_quat: jax.Array  # (4,) (w, x, y, z), w >= 0
-    tcp_jac: jax.Array  # (3, 6) d tcp_pos / d q, world frame
-    collided: jax.Array  # () bool: any listed contact pair penetrates
 
 
 def load_model(xml_path: str | Path = XML_PATH) -> mujoco.MjModel:
@@ -160,10 +152,8 @@ class Arm:
         return self.pose(q, collide)
 
     @functools.cached_property
-    def lean(self):
-        """The lean pose-and-collision pass of this model (mara_mjx.envs.lean.LeanArm)."""
-        from mara_mjx.envs.lean import LeanArm  # lean imports ArmPose from here
-
+    def lean(self) -> LeanArm:
+        """The lean pose-and-collision pass of this model (mara_mjx.envs.lean)."""
         return LeanArm.from_model(self.mj_model)
 
     def train_step(

@@ -21,7 +21,7 @@ geometric Jacobian (6, 6) in the world frame stacks J_pos (column i: xaxis_i x (
 xanchor_i), m/rad, exactly as `Arm._pose` computes it) over J_rot (column i: xaxis_i,
 rad/rad).
 
-    chain = Chain.from_model(load_model())
+    chain = Chain.from_model(mj_model)      # e.g. mara_mjx.envs.arm.load_model()
     tcp_pos, tcp_quat = chain.tcp(q)        # (3,) m, (4,) (w, x, y, z) with w >= 0
     jac = chain.jacobian(q)                 # (6, 6): [J_pos; J_rot]
 """
@@ -29,7 +29,6 @@ rad/rad).
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import jax.numpy as jnp
 import mujoco
@@ -179,11 +178,3 @@ class Chain:
         tcp = x + rot @ jnp.asarray(self.site, jnp.float32)
         j_pos = jnp.cross(axes, tcp[None, :] - anchors).T
         return jnp.concatenate([j_pos, axes.T], axis=0)
-
-
-@functools.lru_cache(maxsize=1)
-def mara_chain() -> Chain:
-    """The chain of the shipped MARA model (assets/mara.xml), built once per process."""
-    from mara_mjx.envs.arm import load_model  # arm imports MJX: only when needed
-
-    return Chain.from_model(load_model())

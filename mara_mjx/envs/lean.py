@@ -38,9 +38,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mara_mjx.envs.arm import ArmPose
 from mara_mjx.envs.chain import Chain, _mat_to_quat, _quat_to_mat
 from mara_mjx.envs.geometry import quat_canonical
+from mara_mjx.envs.pose import ArmPose
 
 _CAPSULE, _BOX = int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_BOX)
 
