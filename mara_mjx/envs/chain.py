@@ -34,14 +34,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mara_mjx.envs.geometry import quat_canonical
-
-
-def _quat_to_mat(q: np.ndarray) -> np.ndarray:
-    """(w, x, y, z) unit quaternion -> (3, 3) rotation matrix (numpy, construction only)."""
-    out = np.zeros(9)
-    mujoco.mju_quat2Mat(out, np.asarray(q, np.float64))
-    return out.reshape(3, 3)
+from mara_mjx.envs.geometry import quat_canonical, quat_to_mat_np
 
 
 def _rodrigues(axis: jnp.ndarray, angle: jnp.ndarray) -> jnp.ndarray:
@@ -133,7 +126,7 @@ class Chain:
             base_pos=d.xpos[root].copy(),
             base_rot=d.xmat[root].reshape(3, 3).copy(),
             body_pos=np.stack([m.body_pos[b] for b in bodies]),
-            body_rot=np.stack([_quat_to_mat(m.body_quat[b]) for b in bodies]),
+            body_rot=np.stack([quat_to_mat_np(m.body_quat[b]) for b in bodies]),
             axis=np.stack([m.jnt_axis[j] / np.linalg.norm(m.jnt_axis[j]) for j in jnt]),
             anchor=np.stack([m.jnt_pos[j] for j in jnt]),
             site=m.site_pos[m.site(site).id].copy(),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 
 def quat_mul(a: jax.Array, b: jax.Array) -> jax.Array:
@@ -38,3 +39,17 @@ def quat_to_euler(q: jax.Array) -> jax.Array:
     pitch = jnp.arcsin(jnp.clip(2.0 * (w * y - z * x), -1.0, 1.0))
     yaw = jnp.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
     return jnp.stack([roll, pitch, yaw], axis=-1)
+
+
+def quat_to_mat_np(quat: np.ndarray) -> np.ndarray:
+    """(..., 4) (w, x, y, z) unit quaternions -> (..., 3, 3) rotation matrices (numpy, host side:
+    pose tables, constants at construction)."""
+    w, x, y, z = np.moveaxis(np.asarray(quat, float), -1, 0)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )

@@ -38,8 +38,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mara_mjx.envs.chain import Chain, _mat_to_quat, _quat_to_mat
-from mara_mjx.envs.geometry import quat_canonical
+from mara_mjx.envs.chain import Chain, _mat_to_quat
+from mara_mjx.envs.geometry import quat_canonical, quat_to_mat_np
 from mara_mjx.envs.pose import ArmPose
 
 _CAPSULE, _BOX = int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_BOX)
@@ -80,7 +80,7 @@ class LeanArm:
             body = int(m.geom_bodyid[g])
             if body not in index:
                 raise ValueError(f"capsule {m.geom(g).name!r} is not on the arm's chain")
-            axis = _quat_to_mat(m.geom_quat[g])[:, 2]
+            axis = quat_to_mat_np(m.geom_quat[g])[:, 2]
             return index[body], m.geom_pos[g].copy(), axis, m.geom_size[g][1], m.geom_size[g][0]
 
         cc, cb = [], []

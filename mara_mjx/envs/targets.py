@@ -53,6 +53,7 @@ import mujoco
 import numpy as np
 
 from mara_mjx.envs.arm import JOINTS, TABLE_TOP_Z
+from mara_mjx.envs.geometry import quat_to_mat_np as _quat_to_mat
 
 TRAIN_STREAM = 0
 EVAL_STREAM = 1
@@ -143,18 +144,6 @@ def _rotate(rot: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
         [z * x * t - y * s, z * y * t + x * s, c + z * z * t],
     ]
     return rot @ np.stack([np.stack(r, -1) for r in rows], -2)
-
-
-def _quat_to_mat(quat: np.ndarray) -> np.ndarray:
-    w, x, y, z = np.moveaxis(np.asarray(quat, float), -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
 
 
 def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
