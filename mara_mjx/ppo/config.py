@@ -126,6 +126,21 @@ class PPOConfig(_ConfigMixin):
     """Rewards are multiplied by this before GAE, so values learn scaled returns (logged
     rewards stay unscaled). The MARA rewards reach 10 per step, so with gamma 0.99 returns
     reach 1000, far outside what the clipped value loss (clip_eps per update) can follow."""
+    population: int = 1
+    """Members trained side by side per run (vmapped; population-based training's exploit
+    step, trainer-side): every `exploit_every` of the updates, and at the last update,
+    the members are ranked by their mean training reward per step since the previous
+    exploit, the worst `exploit_fraction` of them take over the params, optimiser state,
+    observation statistics and env states of the best, and the best moves to member 0,
+    whose policy is the run's (checkpoints, evaluation, export). Each member keeps its own
+    PRNG stream, so copies diverge. A run whose early exploration commits to an arm
+    posture from which the target pose is out of reach is replaced by one that did not
+    (benchmarks/NOTES.md, section 18). 1 is off; total_timesteps counts per member."""
+    exploit_every: float = 0.1
+    """With population > 1: fraction of the updates between exploit steps."""
+    exploit_fraction: float = 0.5
+    """With population > 1: fraction of the members (rounded down, at least 1) replaced by
+    copies of the best at each exploit step."""
     seed: int = 0
     """PRNG seed of initialisation, environments, action noise and shuffling."""
 
@@ -134,6 +149,9 @@ class PPOConfig(_ConfigMixin):
             _check_int(name, getattr(self, name), minimum=1)
         _check_int("update_epochs", self.update_epochs, minimum=1)
         _check_int("seed", self.seed, minimum=0)
+        _check_int("population", self.population, minimum=1)
+        _check_range("exploit_every", self.exploit_every, 0.0, 1.0, low_open=True)
+        _check_range("exploit_fraction", self.exploit_fraction, 0.0, 1.0, low_open=True)
         if self.num_minibatches > self.batch_size or self.batch_size % self.num_minibatches:
             divisors = [
                 d for d in range(1, min(self.batch_size, 4096) + 1) if not self.batch_size % d

@@ -78,6 +78,9 @@ def make_policy(
     params = checkpoint_or_params
     if hasattr(params, "params") and hasattr(params, "obs_stats"):  # RunnerState
         params, obs_stats = params.params, params.obs_stats
+        if getattr(checkpoint_or_params, "fitness", None) is not None:  # population: member 0
+            axis = jnp.ndim(checkpoint_or_params.fitness) - 1
+            params, obs_stats = jax.tree.map(lambda x: jnp.take(x, 0, axis=axis), (params, obs_stats))
     try:
         action_size = int(params["params"]["log_std"].shape[-1])
     except (KeyError, TypeError, AttributeError) as e:
@@ -113,6 +116,10 @@ def policy_from_checkpoint(arrays: dict[str, np.ndarray], meta: dict[str, Any]) 
     network = make_network(config, meta["action_size"])
     obs = jax.ShapeDtypeStruct((meta["observation_size"],), jnp.float32)
     template = jax.eval_shape(network.init, jax.random.key(0), obs, obs)
+    if config.population > 1:  # a population's policy is member 0's (ppo.train.population)
+        arrays = {
+            k: (v[0] if k.startswith(("params/", "obs_stats/")) else v) for k, v in arrays.items()
+        }
     params = arrays_to_state(arrays, template, prefix="params/")
     stats = None
     if config.normalize_obs:

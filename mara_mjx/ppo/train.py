@@ -64,6 +64,10 @@ class RunnerState:
     env_state: BatchedState
     key: jax.Array
     update: jax.Array  # () int32, PPO updates done
+    # PPOConfig.population > 1: (K,) mean training reward per step of each member since
+    # the last exploit step, summed over updates; every other leaf then has a leading
+    # (K,) member axis. None (no leaf) for a single-member run.
+    fitness: Any = None
 
 
 class Transition(NamedTuple):
@@ -360,6 +364,7 @@ def make_train(
             "grad_norm": grad_norm.mean(),
             "learning_rate": lr_at_update(state.update),
             "explained_variance": 1.0 - jnp.var(returns - value) / (jnp.var(returns) + 1e-8),
+            "train_reward_mean": jnp.mean(reward),
             "valid": jnp.array(True),
         }
         new_state = RunnerState(
@@ -386,6 +391,14 @@ def make_train(
 
         return jax.lax.scan(body, state, jnp.arange(updates_per_call))
 
+    if config.population > 1:
+        if mesh is not None:
+            raise ValueError(
+                f"population={config.population} trains its members on one device: "
+                "use --devices 1 (several devices can run several seeds: --seeds)"
+            )
+        init, run = population(init, run, config)
+
     donate = () if jax.default_backend() == "cpu" else (0,)
     return Trainer(
         config=config,
@@ -397,6 +410,69 @@ def make_train(
         num_updates=config.num_updates,
         steps_per_update=config.batch_size,
     )
+
+
+def population(
+    init: Callable[[jax.Array], RunnerState],
+    run: Callable[[RunnerState, jax.Array], tuple[RunnerState, dict[str, jax.Array]]],
+    config: PPOConfig,
+):
+    """`init` and `run` of one member turned into those of `config.population` members
+    (vmapped) with population-based training's exploit step (PPOConfig.population).
+
+    Member 0 starts from the run's key itself (so its start is a single run's), member k
+    from fold_in(key, k). Exploit, at the end of a `run` call that crossed a multiple of
+    the exploit interval (exploit_every of the updates) or reached the last update:
+    members ranked by fitness (their summed mean training reward per step since the last
+    exploit); slot i takes the i-th best for i < K - n, the n = max(1, floor(K *
+    exploit_fraction)) remaining slots take copies of the n best; PRNG keys stay with
+    their slots. So the exploit points fall on call boundaries (RunConfig.updates_per_call)
+    and a run is reproducible for a given updates_per_call. The metrics are member 0's.
+
+    The members are vmapped around the whole scanned `run` (as --seeds does), not inside
+    each update: vmapping the update inside the scan hung XLA:CPU (jax 0.10)."""
+    K = config.population
+    n_copy = min(K - 1, max(1, int(K * config.exploit_fraction)))
+    interval = max(1, round(config.exploit_every * config.num_updates))
+
+    def init_population(key: jax.Array) -> RunnerState:
+        keys = jnp.stack([key] + [jax.random.fold_in(key, k) for k in range(1, K)])
+        state = jax.vmap(init)(keys)
+        return state.replace(fitness=jnp.zeros((K,), jnp.float32))
+
+    def exploit(state: RunnerState) -> RunnerState:
+        fitness = jnp.nan_to_num(state.fitness, nan=-jnp.inf)
+        order = jnp.argsort(-fitness, stable=True)  # best first
+        src = jnp.concatenate([order[: K - n_copy], order[:n_copy]])
+        take = lambda tree: jax.tree.map(lambda x: x[src], tree)  # noqa: E731
+        return state.replace(
+            params=take(state.params),
+            opt_state=take(state.opt_state),
+            obs_stats=take(state.obs_stats),
+            env_state=take(state.env_state),
+            fitness=jnp.zeros_like(state.fitness),
+        )
+
+    def run_population(state: RunnerState, num_updates: jax.Array):
+        before = state.update[0]
+        members, metrics = jax.vmap(run, in_axes=(0, None))(state.replace(fitness=None), num_updates)
+        gained = jnp.where(metrics["valid"], metrics["train_reward_mean"], 0.0).sum(axis=1)
+        state = members.replace(fitness=state.fitness + gained)
+        after = state.update[0]
+        due = (after > before) & ((after // interval > before // interval) | (after == config.num_updates))
+        # a select, not lax.cond (the arrays are small)
+        state = jax.tree.map(lambda new, old: jnp.where(due, new, old), exploit(state), state)
+        out = jax.tree.map(lambda x: x[0], metrics)
+        spread = jnp.max(metrics["train_reward_mean"], 0) - jnp.min(metrics["train_reward_mean"], 0)
+        out["population_fitness_spread"] = spread
+        return state, out
+
+    return init_population, run_population
+
+
+def member_axis(state: RunnerState) -> int | None:
+    """The member axis of a (possibly seed-batched) population RunnerState, else None."""
+    return None if state.fitness is None else jnp.ndim(state.fitness) - 1
 
 
 class SeedTrainer(NamedTuple):
