@@ -433,3 +433,22 @@ def test_bad_seeds_fail_fast_with_a_clear_message(trained, tmp_path, capsys, com
         seeds.check(3, devices=0, available=2)
     seeds.check(4, devices=0, available=2)  # 2 seeds per device
     seeds.check(3, devices=1, available=2)  # every seed on one device
+
+
+def test_population_run_trains_checkpoints_and_evaluates(users_env, tmp_path):
+    """`--population 2` through the CLIs: member 0's policy in the checkpoints, which
+    `evaluate` reads like any run's (MARA: the vmapped Orient programs hung on XLA:CPU,
+    benchmarks/NOTES.md section 18)."""
+    out = tmp_path / "run"
+    args = [*TINY, "--population", "2", "--tensorboard", "false", "--out", str(out)]
+    proc = run_module(users_env, "mara_mjx.train", *args)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    config = json.loads((out / "config.json").read_text())
+    assert config["ppo"]["population"] == 2
+    arrays, _ = ckpt.load_checkpoint(out / CKPT2)
+    assert arrays["params/params/log_std"].shape == (2, 6)  # both members saved
+    assert arrays["fitness"].shape == (2,)
+    report = tmp_path / "eval.json"
+    proc = run_module(users_env, "mara_mjx.evaluate", str(out), "--json", str(report))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    assert json.loads(report.read_text())
