@@ -107,7 +107,9 @@ def test_population_trains_and_member_0_is_the_policy(toy_population):
     batched = jax.tree.map(lambda x: jnp.stack([x, x]), state)
     assert member_axis(batched) == 1
     both = make_policy(batched, trainer.config)
-    np.testing.assert_array_equal(both.params["params"]["log_std"][1], policy.params["params"]["log_std"])
+    np.testing.assert_array_equal(
+        both.params["params"]["log_std"][1], policy.params["params"]["log_std"]
+    )
 
 
 @pytest.mark.parametrize(

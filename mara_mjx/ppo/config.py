@@ -128,14 +128,15 @@ class PPOConfig(_ConfigMixin):
     reach 1000, far outside what the clipped value loss (clip_eps per update) can follow."""
     population: int = 1
     """Members trained side by side per run (vmapped; population-based training's exploit
-    step, trainer-side): every `exploit_every` of the updates, and at the last update,
-    the members are ranked by their mean training reward per step since the previous
-    exploit, the worst `exploit_fraction` of them take over the params, optimiser state,
-    observation statistics and env states of the best, and the best moves to member 0,
-    whose policy is the run's (checkpoints, evaluation, export). Each member keeps its own
-    PRNG stream, so copies diverge. A run whose early exploration commits to an arm
-    posture from which the target pose is out of reach is replaced by one that did not
-    (benchmarks/NOTES.md, section 18). 1 is off; total_timesteps counts per member."""
+    step, trainer-side): after the jitted call (RunConfig.updates_per_call) that crosses
+    each `exploit_every` of the updates, and after the last update, the members are ranked
+    by their mean training reward per step since the previous exploit, the worst
+    `exploit_fraction` of them take over the params, optimiser state, observation
+    statistics and env states of the best, and the best moves to member 0, whose policy is
+    the run's (checkpoints, evaluation, export). Each member keeps its own PRNG stream, so
+    copies diverge. A run whose early exploration commits to an arm posture from which the
+    target pose is out of reach is replaced by one that did not (benchmarks/NOTES.md,
+    section 18). 1 is off; total_timesteps counts per member."""
     exploit_every: float = 0.1
     """With population > 1: fraction of the updates between exploit steps."""
     exploit_fraction: float = 0.5

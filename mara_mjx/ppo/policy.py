@@ -28,6 +28,7 @@ from mara_mjx.ppo.checkpoint import (
 )
 from mara_mjx.ppo.config import PPOConfig
 from mara_mjx.ppo.networks import ActorCritic, RunningStats, forward, make_network
+from mara_mjx.ppo.train import member_axis
 
 
 @struct.dataclass
@@ -78,9 +79,11 @@ def make_policy(
     params = checkpoint_or_params
     if hasattr(params, "params") and hasattr(params, "obs_stats"):  # RunnerState
         params, obs_stats = params.params, params.obs_stats
-        if getattr(checkpoint_or_params, "fitness", None) is not None:  # population: member 0
-            axis = jnp.ndim(checkpoint_or_params.fitness) - 1
-            params, obs_stats = jax.tree.map(lambda x: jnp.take(x, 0, axis=axis), (params, obs_stats))
+        axis = member_axis(checkpoint_or_params)
+        if axis is not None:  # a population's policy is member 0's
+            params, obs_stats = jax.tree.map(
+                lambda x: jnp.take(x, 0, axis=axis), (params, obs_stats)
+            )
     try:
         action_size = int(params["params"]["log_std"].shape[-1])
     except (KeyError, TypeError, AttributeError) as e:

@@ -429,8 +429,7 @@ def population(
     their slots. So the exploit points fall on call boundaries (RunConfig.updates_per_call)
     and a run is reproducible for a given updates_per_call. The metrics are member 0's.
 
-    The members are vmapped around the whole scanned `run` (as --seeds does), not inside
-    each update: vmapping the update inside the scan hung XLA:CPU (jax 0.10)."""
+    The members are vmapped around the whole scanned `run`, as --seeds vmaps seeds."""
     K = config.population
     n_copy = min(K - 1, max(1, int(K * config.exploit_fraction)))
     interval = max(1, round(config.exploit_every * config.num_updates))
@@ -455,11 +454,15 @@ def population(
 
     def run_population(state: RunnerState, num_updates: jax.Array):
         before = state.update[0]
-        members, metrics = jax.vmap(run, in_axes=(0, None))(state.replace(fitness=None), num_updates)
+        members, metrics = jax.vmap(run, in_axes=(0, None))(
+            state.replace(fitness=None), num_updates
+        )
         gained = jnp.where(metrics["valid"], metrics["train_reward_mean"], 0.0).sum(axis=1)
         state = members.replace(fitness=state.fitness + gained)
         after = state.update[0]
-        due = (after > before) & ((after // interval > before // interval) | (after == config.num_updates))
+        due = (after > before) & (
+            (after // interval > before // interval) | (after == config.num_updates)
+        )
         # a select, not lax.cond (the arrays are small)
         state = jax.tree.map(lambda new, old: jnp.where(due, new, old), exploit(state), state)
         out = jax.tree.map(lambda x: x[0], metrics)
