@@ -12,6 +12,7 @@ import pytest
 import mara_mjx
 from mara_mjx.ppo.config import PRESETS, PPOConfig, for_env, reward_curriculum
 from mara_mjx.ppo.networks import RunningStats, canonical_quat, forward, make_network
+from mara_mjx.ppo.train import make_train
 
 
 def test_canonical_quat_flips_only_negative_w():
@@ -74,3 +75,26 @@ def test_reward_curriculum_parses_and_names_bad_input():
         PPOConfig(train_collision_penalty=-1.0)
     with pytest.raises(ValueError, match="bound_coef"):
         PPOConfig(bound_coef=float("inf"))
+
+
+def test_train_reset_noise_starts_episodes_off_the_reset_pose():
+    """train_reset_noise: the first episodes start within the noise box, not all at q = 0;
+    an env without `reset_noise` in its params gets it cleared; bad values are named."""
+    env = mara_mjx.make("MARA")
+    sizes = dict(num_envs=8, num_steps=4, num_minibatches=1, total_timesteps=64)
+    config = PRESETS["cpu"].replace(**sizes, train_reset_noise=0.3)
+    state = make_train(env, config).init(jax.random.key(0))
+    q = np.asarray(state.env_state.env_state.q)
+    assert q.shape == (8, 6)
+    assert np.abs(q).max() <= 0.3 + 1e-6
+    assert np.abs(q).max() > 0.1  # noise drawn (uniform in +-0.3 on 48 values)
+    np.testing.assert_allclose(state.env_state.env_state.params.reset_noise, 0.3)
+    off = make_train(env, config.replace(train_reset_noise=0.0)).init(jax.random.key(0))
+    np.testing.assert_array_equal(off.env_state.env_state.q, 0.0)
+    with pytest.raises(ValueError, match="train_reset_noise"):
+        PPOConfig(train_reset_noise=0.6)
+
+    class NoNoise:  # a user's env whose params have no reset_noise
+        default_params = object()
+
+    assert for_env(config, NoNoise()).train_reset_noise == 0.0

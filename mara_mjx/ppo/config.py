@@ -110,6 +110,13 @@ class PPOConfig(_ConfigMixin):
     train_reward_until: float = 0.5
     """Fraction of the updates after which `train_reward` has reached the env's values
     (and `train_collision_penalty` has reached 0)."""
+    train_reset_noise: float = 0.0
+    """Training only: the rollouts' episodes start at the env's reset pose plus uniform
+    joint noise of this half-width (rad, at most 0.5), shrinking linearly to the env's own
+    `reset_noise` by `train_reward_until` of the updates, so early exploration sees the
+    arm from many postures rather than one (a curriculum over the reset distribution;
+    evaluation keeps the env's reset). 0 is off; ignored for an env without
+    `reset_noise` in its params."""
     train_collision_penalty: float = 0.0
     """Training only: subtract this times the spec's collision penalty C (delta (2 min(d,
     0.5))^eta, the env's delta and eta) from every colliding step's reward, moving linearly
@@ -209,6 +216,7 @@ class PPOConfig(_ConfigMixin):
         _check_range("bound_coef", self.bound_coef, 0.0, math.inf)
         _check_range("train_reward_until", self.train_reward_until, 0.0, 1.0, low_open=True)
         _check_range("train_collision_penalty", self.train_collision_penalty, 0.0, math.inf)
+        _check_range("train_reset_noise", self.train_reset_noise, 0.0, 0.5)
         reward_curriculum(self.train_reward)
         if not _is_int(self.quat_index) or self.quat_index < -1:
             raise ValueError(f"quat_index must be an int >= -1, got {self.quat_index!r}")
@@ -263,8 +271,8 @@ def reward_curriculum(text: str) -> dict[str, float]:
 def for_env(config: PPOConfig, env: Any) -> PPOConfig:
     """`config` with the env-dependent fields resolved: `quat_index` from the env's
     `observation_layout` (a list of {name, start, stop, ...}; -1 where it has no
-    quat_err), and `train_reward` and `train_collision_penalty` cleared for an env whose
-    params have no `reward`."""
+    quat_err), `train_reward` and `train_collision_penalty` cleared for an env whose
+    params have no `reward`, and `train_reset_noise` for one without `reset_noise`."""
     layout = getattr(env, "observation_layout", None) or []
     starts = [int(part["start"]) for part in layout if part.get("name") == "quat_err"]
     index = starts[0] if (config.canonical_quat and starts) else -1
@@ -274,6 +282,8 @@ def for_env(config: PPOConfig, env: Any) -> PPOConfig:
     # config says so.
     if not hasattr(getattr(env, "default_params", None), "reward"):
         resolved = resolved.replace(train_reward="", train_collision_penalty=0.0)
+    if not hasattr(getattr(env, "default_params", None), "reset_noise"):
+        resolved = resolved.replace(train_reset_noise=0.0)
     return resolved
 
 

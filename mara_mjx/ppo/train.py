@@ -160,20 +160,29 @@ def make_train(
     until = max(1.0, config.train_reward_until * config.num_updates)
 
     def with_train_reward(env_state: BatchedState, update: jax.Array) -> BatchedState:
-        """The rollout's reward hyperparameters: `train_reward` moving linearly to the
-        env's own over the first train_reward_until of the updates (PPOConfig)."""
-        if not curriculum:
+        """The rollout's reward hyperparameters and reset noise: `train_reward` and
+        `train_reset_noise` moving linearly to the env's own over the first
+        train_reward_until of the updates (PPOConfig)."""
+        if not curriculum and config.train_reset_noise <= 0.0:
             return env_state
         frac = jnp.clip(update.astype(jnp.float32) / until, 0.0, 1.0)
         params = env_state.env_state.params
-        own = benv.env.default_params.reward
-        reward = params.reward.replace(
-            **{
-                k: jnp.full_like(getattr(params.reward, k), v + frac * (getattr(own, k) - v))
-                for k, v in curriculum.items()
-            }
-        )
-        inner = env_state.env_state.replace(params=params.replace(reward=reward))
+        own_params = benv.env.default_params
+        if curriculum:
+            own = own_params.reward
+            reward = params.reward.replace(
+                **{
+                    k: jnp.full_like(getattr(params.reward, k), v + frac * (getattr(own, k) - v))
+                    for k, v in curriculum.items()
+                }
+            )
+            params = params.replace(reward=reward)
+        if config.train_reset_noise > 0.0:
+            v, own = config.train_reset_noise, own_params.reset_noise
+            params = params.replace(
+                reset_noise=jnp.full_like(params.reset_noise, v + frac * (own - v))
+            )
+        inner = env_state.env_state.replace(params=params)
         return env_state.replace(env_state=inner)
 
     def stats_in_use(state: RunnerState) -> RunningStats | None:
@@ -181,6 +190,13 @@ def make_train(
 
     def policy(params: Any, stats: RunningStats | None, obs: jax.Array):
         return forward(network, params, stats, obs, config.obs_clip)
+
+    def initial_params() -> Any:
+        """The env's default params, with `train_reset_noise` for the first episodes."""
+        if config.train_reset_noise <= 0.0:
+            return None
+        own = benv.env.default_params
+        return own.replace(reset_noise=jnp.full_like(own.reset_noise, config.train_reset_noise))
 
     def init(key: jax.Array) -> RunnerState:
         key, net_key, env_key = jax.random.split(key, 3)
@@ -191,7 +207,7 @@ def make_train(
             params=params,
             opt_state=optimizer.init(params),
             obs_stats=RunningStats.create(obs_size),
-            env_state=benv.reset(env_key),
+            env_state=benv.reset(env_key, initial_params()),
             key=key,
             update=jnp.zeros((), jnp.int32),
         )

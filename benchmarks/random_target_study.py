@@ -1,0 +1,159 @@
+"""Random-target study (issue 12): which trainer-side recipe gives one policy that reaches
+any pose of the region. Several seeds of each (task, variant) train in one vmapped program
+(ppo.train.make_seed_trainer, as benchmarks/orientation_study.py); at the end every seed's
+policy is evaluated on `--poses` held-out poses exactly as `python -m mara_mjx.evaluate`
+does for a random-target run (ppo.target_eval: evaluation stream disjoint from the
+training table's, hold to the horizon, per-axis mean / median / p95 / worst).
+
+    python benchmarks/random_target_study.py --tasks MARACollisionOrientRandomTarget \
+        --seeds 0 1 --variants default 'train_reward_until=1.0' \
+        --total-timesteps 150000000 --out study.json
+
+Variants: 'default' (the default preset) or 'key=value;key=value' PPOConfig overrides
+(JSON values, as orientation_study.py); `--env` 'key=value;...' EnvConfig overrides
+(e.g. 'target_table_size=16384') apply to every variant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+import jax
+import numpy as np
+
+import mara_mjx
+from mara_mjx.envs import targets
+from mara_mjx.ppo import target_eval
+from mara_mjx.ppo.config import PRESETS
+from mara_mjx.ppo.evaluation import evaluate, make_evaluate
+from mara_mjx.ppo.policy import make_policy
+from mara_mjx.ppo.train import make_seed_trainer, make_train, take_seed
+
+sys.path.insert(0, os.path.dirname(__file__))
+from orientation_study import parse_variant  # noqa: E402
+
+
+def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
+    t0 = time.monotonic()
+    env_overrides = parse_variant(args.env) if args.env else {}
+    env = mara_mjx.make(task, **env_overrides)
+    overrides = {} if variant == "default" else parse_variant(variant)
+    sizes = {"num_envs": 16, "num_steps": 8, "num_minibatches": 4} if args.tiny else {}
+    if args.total_timesteps:
+        sizes["total_timesteps"] = args.total_timesteps
+    config = PRESETS["default"].replace(**sizes, **overrides)
+    trainer = make_train(env, config, updates_per_call=args.chunk, devices=1)
+    config = trainer.config
+    st = make_seed_trainer(trainer, seeds)
+    state = st.init()
+    done, first, rows = 0, {}, []
+    while done < trainer.num_updates:
+        n = min(args.chunk, trainer.num_updates - done)
+        state, metrics = st.run(state, n)
+        metrics = jax.device_get(metrics)
+        done += n
+        now = time.monotonic() - t0
+        det_err = np.asarray(metrics["det_error_mm"])[:, :n]  # (S, n)
+        for thr in (5.0, 1.0):
+            for i, s in enumerate(seeds):
+                if (thr, s) not in first and np.nanmin(det_err[i]) < thr:
+                    first[(thr, s)] = now
+        rows.append(
+            {
+                "update": done,
+                "time_s": now,
+                "det_error_mm": det_err[:, -1].tolist(),
+                **{
+                    k: np.asarray(metrics[k])[:, n - 1].tolist()
+                    for k in ("det_ori_err_x_deg", "det_ori_err_y_deg", "det_ori_err_z_deg")
+                    if k in metrics
+                },
+            }
+        )
+    jax.block_until_ready(state)
+    train_s = time.monotonic() - t0
+    ev_config = target_eval.eval_config({"episodes": args.poses})
+    poses = targets.evaluation_poses(
+        env.arm.mj_model, env.region, ev_config.episodes, ev_config.seed
+    )
+    params = target_eval.with_targets(
+        env.make_params(reset_noise=ev_config.noise), poses.pos, poses.quat
+    )
+    fn = make_evaluate(env, ev_config, params)
+    per_seed = []
+    for i, s in enumerate(seeds):
+        policy = make_policy(take_seed(state, i), config)
+        res = evaluate(env, policy, ev_config, params, fn=fn)
+        train = env.pose_table().pos
+        gaps = np.linalg.norm(poses.pos[:, None, :] - train[None, :, :], axis=-1)
+        tres = target_eval.TargetEvalResult(res, poses.pos, poses.quat, 1000 * gaps.min(1))
+        summary = tres.summary(env.task.orientation)
+        summary["time_to_5mm_s"] = first.get((5.0, s))
+        summary["time_to_1mm_s"] = first.get((1.0, s))
+        per_seed.append({"seed": s, **summary})
+    out = {
+        "task": task,
+        "variant": variant,
+        "env_overrides": env_overrides,
+        "config": config.to_dict(),
+        "env_config": env.config.to_dict() if hasattr(env.config, "to_dict") else None,
+        "seeds": list(seeds),
+        "train_s": train_s,
+        "env_steps_per_s": len(seeds) * trainer.num_updates * trainer.steps_per_update / train_s,
+        "per_seed": per_seed,
+        "timeline": rows,
+    }
+    print(f"== {task} {variant} (env {env_overrides}): train {train_s:.0f} s", flush=True)
+    for r in per_seed:
+        pos = r["position_error_mm"]
+        line = (
+            f"  seed {r['seed']}: pos mean {np.round(pos['mean'], 2).tolist()} p95 "
+            f"{np.round(pos['p95'], 2).tolist()} mm, within 5/1 mm {r['within_mm']}"
+        )
+        if "orientation_error_deg" in r:
+            ori = r["orientation_error_deg"]
+            line += (
+                f", ori mean {np.round(ori['mean'], 2).tolist()} median "
+                f"{np.round(ori['median'], 2).tolist()} p95 {np.round(ori['p95'], 2).tolist()}"
+            )
+        line += f", collisions {r['collisions']} in {r['episodes_with_collisions']} episodes"
+        print(line + f", 1 mm at {r['time_to_1mm_s']}", flush=True)
+    return out
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--tasks", nargs="+", default=["MARACollisionOrientRandomTarget"])
+    p.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
+    p.add_argument("--variants", nargs="+", default=["default"])
+    p.add_argument("--env", default="", help="EnvConfig overrides 'key=value;...'")
+    p.add_argument("--total-timesteps", type=int, default=0)
+    p.add_argument("--chunk", type=int, default=50)
+    p.add_argument("--poses", type=int, default=1000)
+    p.add_argument("--tiny", action="store_true", help="CPU smoke test sizes")
+    p.add_argument("--out", default="random_target_study.json")
+    args = p.parse_args()
+    results = []
+    for task in args.tasks:
+        for variant in args.variants:
+            results.append(study(task, variant, tuple(args.seeds), args))
+            with open(args.out, "w") as f:
+                json.dump(
+                    {
+                        "command": "python benchmarks/random_target_study.py "
+                        + " ".join(sys.argv[1:]),
+                        "device": str(jax.devices()[0]),
+                        "jax": jax.__version__,
+                        "mara_mjx": getattr(mara_mjx, "__version__", None),
+                        "results": results,
+                    },
+                    f,
+                )
+
+
+if __name__ == "__main__":
+    main()
