@@ -9,9 +9,10 @@ training table's, hold to the horizon, per-axis mean / median / p95 / worst).
         --seeds 0 1 --variants default 'train_reward_until=1.0' \
         --total-timesteps 150000000 --out study.json
 
-Variants: 'default' (the default preset) or 'key=value;key=value' PPOConfig overrides
-(JSON values, as orientation_study.py); `--env` 'key=value;...' EnvConfig overrides
-(e.g. 'target_table_size=16384') apply to every variant.
+Variants: 'default' (the train CLI's preset for the task: 'random_target') or
+'key=value;key=value' overrides of it (JSON values, as orientation_study.py); `--env`
+'key=value;...' EnvConfig overrides (e.g. 'target_table_size=16384') apply to every
+variant.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import numpy as np
 import mara_mjx
 from mara_mjx.envs import targets
 from mara_mjx.ppo import target_eval
-from mara_mjx.ppo.config import PRESETS
+from mara_mjx.ppo.config import PRESETS, default_preset
 from mara_mjx.ppo.evaluation import evaluate, make_evaluate
 from mara_mjx.ppo.policy import make_policy
 from mara_mjx.ppo.train import make_seed_trainer, make_train, take_seed
@@ -45,7 +46,7 @@ def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
     sizes = {"num_envs": 16, "num_steps": 8, "num_minibatches": 4} if args.tiny else {}
     if args.total_timesteps:
         sizes["total_timesteps"] = args.total_timesteps
-    config = PRESETS["default"].replace(**sizes, **overrides)
+    config = PRESETS[default_preset(task)].replace(**sizes, **overrides)
     trainer = make_train(env, config, updates_per_call=args.chunk, devices=1)
     config = trainer.config
     st = make_seed_trainer(trainer, seeds)

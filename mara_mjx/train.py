@@ -73,7 +73,7 @@ from mara_mjx.envs.base import EnvConfig
 from mara_mjx.envs.randomize import RandomizeConfig
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import logger, warmup
-from mara_mjx.ppo.config import PRESETS, EvalConfig, PPOConfig, RunConfig
+from mara_mjx.ppo.config import PRESETS, EvalConfig, PPOConfig, RunConfig, default_preset
 from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table, make_evaluate
 from mara_mjx.ppo.policy import make_policy
 from mara_mjx.ppo.train import Trainer, make_train, num_parameters
@@ -120,8 +120,9 @@ def build_parser() -> argparse.ArgumentParser:
         choices=sorted(PRESETS),
         help="PPO preset: 'default' (thousands of envs on one GPU), 'paper' (the paper's "
         "baselines ppo2 run: 1 env, 2048 steps, 1e8 steps), 'ros2learn' (2 x 16 nets, "
-        "exponential lr), 'cpu' (256 envs x 16 steps, 3e6 steps: a laptop CPU); flags "
-        "override its fields (default: default)",
+        "exponential lr), 'cpu' (256 envs x 16 steps, 3e6 steps: a laptop CPU), "
+        "'random_target' (default with staggered first episodes); flags override its "
+        "fields (default: random_target for a *RandomTarget env, else default)",
     )
     parser.add_argument(
         "--resume",
@@ -142,7 +143,7 @@ def resolve(args: argparse.Namespace) -> Plan:
     if args.resume is None:
         if args.env is None:
             raise UserError(f"--env is required; choose one of {list(mara_mjx.registered())}")
-        preset = PRESETS[args.preset or "default"]
+        preset = PRESETS[args.preset or default_preset(args.env)]
         ppo = _build("PPO config", lambda: preset.replace(**given["ppo"]))
         run = _build("run config", lambda: RunConfig().replace(**given["run"]))
         evaluation = _build("eval config", lambda: EvalConfig().replace(**given["eval"]))

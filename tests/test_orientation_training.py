@@ -98,3 +98,18 @@ def test_train_reset_noise_starts_episodes_off_the_reset_pose():
         default_params = object()
 
     assert for_env(config, NoNoise()).train_reset_noise == 0.0
+
+
+def test_stagger_episodes_spreads_the_first_episodes_over_the_horizon():
+    """stagger_episodes: the envs' step counters start spread over [0, horizon), so
+    their episodes end at different updates; off, all start at 0 (the same key stream)."""
+    env = mara_mjx.make("MARA", max_episode_steps=64)
+    sizes = dict(num_envs=32, num_steps=4, num_minibatches=1, total_timesteps=128)
+    config = PRESETS["cpu"].replace(**sizes)
+    on = make_train(env, config.replace(stagger_episodes=True)).init(jax.random.key(0))
+    steps = np.asarray(on.env_state.env_state.step)
+    assert steps.min() >= 0 and steps.max() < 64
+    assert len(np.unique(steps)) > 8  # spread, not one phase
+    off = make_train(env, config).init(jax.random.key(0))
+    np.testing.assert_array_equal(off.env_state.env_state.step, 0)
+    np.testing.assert_array_equal(off.env_state.env_state.q, on.env_state.env_state.q)

@@ -452,3 +452,18 @@ def test_population_run_trains_checkpoints_and_evaluates(users_env, tmp_path):
     proc = run_module(users_env, "mara_mjx.evaluate", str(out), "--json", str(report))
     assert proc.returncode == 0, proc.stderr[-4000:]
     assert json.loads(report.read_text())
+
+
+def test_the_preset_follows_the_task_unless_one_is_given():
+    """A *RandomTarget env trains with the 'random_target' preset (staggered first
+    episodes), the fixed-target tasks with 'default'; --preset and flags win. No compile."""
+
+    def ppo(*argv):
+        return train_cli.resolve(train_cli.build_parser().parse_args([*argv, "--out", "x"])).ppo
+
+    assert ppo("--env", "MARACollisionOrientRandomTarget").stagger_episodes is True
+    assert ppo("--env", "MARACollisionOrient").stagger_episodes is False
+    assert ppo("--env", "MARARandomTarget", "--preset", "default").stagger_episodes is False
+    flagged = ppo("--env", "MARARandomTarget", "--stagger_episodes", "false")
+    assert flagged.stagger_episodes is False
+    assert flagged.replace(stagger_episodes=True) == ppo("--env", "MARARandomTarget")

@@ -203,11 +203,18 @@ def make_train(
         obs = jnp.zeros((obs_size,), jnp.float32)
         params = network.init(net_key, obs, obs)
         params = sharding.replicate(params, mesh)
+        env_state = benv.reset(env_key, initial_params())
+        if config.stagger_episodes and hasattr(env_state.env_state, "step"):
+            key, stagger_key = jax.random.split(key)
+            horizon = benv.env.max_episode_steps
+            steps = jax.random.randint(stagger_key, (config.num_envs,), 0, horizon, jnp.int32)
+            inner = env_state.env_state.replace(step=steps)
+            env_state = sharding.constrain(env_state.replace(env_state=inner), mesh)
         return RunnerState(
             params=params,
             opt_state=optimizer.init(params),
             obs_stats=RunningStats.create(obs_size),
-            env_state=benv.reset(env_key, initial_params()),
+            env_state=env_state,
             key=key,
             update=jnp.zeros((), jnp.int32),
         )
