@@ -266,6 +266,12 @@ def main():
     p.add_argument("--tiny", action="store_true", help="CPU smoke test sizes")
     p.add_argument("--out", default="orientation_study.json")
     args = p.parse_args()
+    run_studies(study, args, "orientation_study.py")
+
+
+def run_studies(study, args, script: str, **extra) -> None:
+    """study(task, variant, seeds, args) for every (task, variant), rewriting args.out
+    after each, with the command, device and versions."""
     results = []
     for task in args.tasks:
         for variant in args.variants:
@@ -273,10 +279,10 @@ def main():
             with open(args.out, "w") as f:
                 json.dump(
                     {
-                        "command": "python benchmarks/orientation_study.py "
-                        + " ".join(os.sys.argv[1:]),
+                        "command": f"python benchmarks/{script} " + " ".join(os.sys.argv[1:]),
                         "device": str(jax.devices()[0]),
                         "jax": jax.__version__,
+                        **extra,
                         "results": results,
                     },
                     f,

@@ -18,7 +18,6 @@ variant.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -35,7 +34,7 @@ from mara_mjx.ppo.policy import make_policy
 from mara_mjx.ppo.train import make_seed_trainer, make_train, take_seed
 
 sys.path.insert(0, os.path.dirname(__file__))
-from orientation_study import parse_variant  # noqa: E402
+from orientation_study import parse_variant, run_studies  # noqa: E402
 
 
 def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
@@ -138,22 +137,9 @@ def main():
     p.add_argument("--tiny", action="store_true", help="CPU smoke test sizes")
     p.add_argument("--out", default="random_target_study.json")
     args = p.parse_args()
-    results = []
-    for task in args.tasks:
-        for variant in args.variants:
-            results.append(study(task, variant, tuple(args.seeds), args))
-            with open(args.out, "w") as f:
-                json.dump(
-                    {
-                        "command": "python benchmarks/random_target_study.py "
-                        + " ".join(sys.argv[1:]),
-                        "device": str(jax.devices()[0]),
-                        "jax": jax.__version__,
-                        "mara_mjx": getattr(mara_mjx, "__version__", None),
-                        "results": results,
-                    },
-                    f,
-                )
+    run_studies(
+        study, args, "random_target_study.py", mara_mjx=getattr(mara_mjx, "__version__", None)
+    )
 
 
 if __name__ == "__main__":

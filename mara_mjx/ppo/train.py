@@ -159,6 +159,26 @@ def make_train(
     curriculum = reward_curriculum(config.train_reward)
     until = max(1.0, config.train_reward_until * config.num_updates)
 
+    def curriculum_params(params: Any, frac: jax.Array) -> Any:
+        """`params` with `train_reward` and `train_reset_noise` at `frac` (0: the
+        PPOConfig values, 1: the env's own) of the way to the env's defaults."""
+        own = benv.env.default_params
+        if curriculum:
+            reward = params.reward.replace(
+                **{
+                    k: jnp.full_like(
+                        getattr(params.reward, k), v + frac * (getattr(own.reward, k) - v)
+                    )
+                    for k, v in curriculum.items()
+                }
+            )
+            params = params.replace(reward=reward)
+        if config.train_reset_noise > 0.0:
+            v = config.train_reset_noise
+            noise = jnp.full_like(params.reset_noise, v + frac * (own.reset_noise - v))
+            params = params.replace(reset_noise=noise)
+        return params
+
     def with_train_reward(env_state: BatchedState, update: jax.Array) -> BatchedState:
         """The rollout's reward hyperparameters and reset noise: `train_reward` and
         `train_reset_noise` moving linearly to the env's own over the first
@@ -166,24 +186,8 @@ def make_train(
         if not curriculum and config.train_reset_noise <= 0.0:
             return env_state
         frac = jnp.clip(update.astype(jnp.float32) / until, 0.0, 1.0)
-        params = env_state.env_state.params
-        own_params = benv.env.default_params
-        if curriculum:
-            own = own_params.reward
-            reward = params.reward.replace(
-                **{
-                    k: jnp.full_like(getattr(params.reward, k), v + frac * (getattr(own, k) - v))
-                    for k, v in curriculum.items()
-                }
-            )
-            params = params.replace(reward=reward)
-        if config.train_reset_noise > 0.0:
-            v, own = config.train_reset_noise, own_params.reset_noise
-            params = params.replace(
-                reset_noise=jnp.full_like(params.reset_noise, v + frac * (own - v))
-            )
-        inner = env_state.env_state.replace(params=params)
-        return env_state.replace(env_state=inner)
+        params = curriculum_params(env_state.env_state.params, frac)
+        return env_state.replace(env_state=env_state.env_state.replace(params=params))
 
     def stats_in_use(state: RunnerState) -> RunningStats | None:
         return state.obs_stats if config.normalize_obs else None
@@ -192,11 +196,12 @@ def make_train(
         return forward(network, params, stats, obs, config.obs_clip)
 
     def initial_params() -> Any:
-        """The env's default params, with `train_reset_noise` for the first episodes."""
+        """The env's default params, with `train_reset_noise` for the first episodes
+        (None, the env's defaults, without it)."""
         if config.train_reset_noise <= 0.0:
             return None
         own = benv.env.default_params
-        return own.replace(reset_noise=jnp.full_like(own.reset_noise, config.train_reset_noise))
+        return own.replace(reset_noise=curriculum_params(own, 0.0).reset_noise)
 
     def init(key: jax.Array) -> RunnerState:
         key, net_key, env_key = jax.random.split(key, 3)
