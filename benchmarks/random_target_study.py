@@ -84,6 +84,14 @@ def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
         env.make_params(reset_noise=ev_config.noise), poses.pos, poses.quat
     )
     fn = make_evaluate(env, ev_config, params)
+    if args.real_velocity:
+        real_env = mara_mjx.make(
+            task, driver="real", velocity=args.real_velocity, **env_overrides
+        )
+        real_params = target_eval.with_targets(
+            real_env.make_params(reset_noise=ev_config.noise), poses.pos, poses.quat
+        )
+        real_fn = make_evaluate(real_env, ev_config, real_params)
     per_seed = []
     for i, s in enumerate(seeds):
         policy = make_policy(take_seed(state, i), config)
@@ -92,6 +100,12 @@ def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
         gaps = np.linalg.norm(poses.pos[:, None, :] - train[None, :, :], axis=-1)
         tres = target_eval.TargetEvalResult(res, poses.pos, poses.quat, 1000 * gaps.min(1))
         summary = tres.summary(env.task.orientation)
+        if args.real_velocity:  # the same policy and poses on the servo-driven real driver
+            rres = evaluate(real_env, policy, ev_config, real_params, fn=real_fn)
+            rsum = target_eval.TargetEvalResult(
+                rres, poses.pos, poses.quat, tres.nearest_training_mm
+            ).summary(env.task.orientation)
+            summary["real_driver"] = {"velocity": args.real_velocity, **rsum}
         summary["time_to_5mm_s"] = first.get((5.0, s))
         summary["time_to_1mm_s"] = first.get((1.0, s))
         per_seed.append({"seed": s, **summary})
@@ -122,6 +136,16 @@ def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
             )
         line += f", collisions {r['collisions']} in {r['episodes_with_collisions']} episodes"
         print(line + f", 1 mm at {r['time_to_1mm_s']}", flush=True)
+        if "real_driver" in r:
+            rd = r["real_driver"]
+            print(
+                f"    real driver {rd['velocity']} rad/s: pos mean "
+                f"{np.round(rd['position_error_mm']['mean'], 2).tolist()} mm, within 5/1 mm "
+                f"{rd['within_mm']}, ori mean "
+                f"{np.round(rd.get('orientation_error_deg', {}).get('mean', []), 2).tolist()}, "
+                f"collisions in {rd['episodes_with_collisions']} episodes",
+                flush=True,
+            )
     return out
 
 
@@ -135,6 +159,10 @@ def main():
     p.add_argument("--chunk", type=int, default=50)
     p.add_argument("--poses", type=int, default=1000)
     p.add_argument("--tiny", action="store_true", help="CPU smoke test sizes")
+    p.add_argument(
+        "--real-velocity", type=float, default=0.0,
+        help="also evaluate every policy on the real driver at this servo speed (rad/s)",
+    )
     p.add_argument("--out", default="random_target_study.json")
     args = p.parse_args()
     run_studies(

@@ -27,6 +27,7 @@ File layout (`np.load(path)`; no pickles):
     __meta__           JSON: format, env_name, env_config, observation_size, action_size,
                        hidden_sizes, activation, normalize_obs, obs_clip, obs_var_eps,
                        relative_actions (add obs[..., :action_size] to the MLP output),
+                       max_joint_step (> 0: the MLP output d becomes m tanh(d / m) first),
                        hidden_obs (indices set to 0 after normalisation),
                        quat_index (-1, or where the sign-canonicalised quaternion starts),
                        observation_layout [{name, start, stop, units, description}],
@@ -88,6 +89,12 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
     arrays, meta = ckpt.load_checkpoint(source)
     policy = policy_io.policy_from_checkpoint(arrays, meta)
     config = policy.config
+    if getattr(config, "task_space_actions", False):
+        raise ExportError(
+            f"{str(source)!r} was trained with task_space_actions=true, whose joint targets "
+            "need the arm's Jacobian (mara_mjx.envs.task_space); .npz/.onnx export supports "
+            "joint-space policies only. Use mara_mjx.ppo.load_policy(checkpoint) in JAX instead"
+        )
 
     env_name, env_config = meta["env_name"], meta["env_config"]
     try:
@@ -126,6 +133,7 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
         "obs_clip": float(config.obs_clip),
         "obs_var_eps": OBS_VAR_EPS,
         "relative_actions": bool(config.relative_actions),
+        "max_joint_step": float(getattr(config, "max_joint_step", 0.0)),
         "hidden_obs": [int(i) for i in config.hidden_obs],
         "quat_index": int(config.quat_index) if config.canonical_quat else -1,
         "observation_layout": env.observation_layout,
@@ -237,6 +245,9 @@ class NumpyPolicy:
             if i < len(self.kernels) - 1:
                 x = np.tanh(x)
         if self.meta.get("relative_actions", False):
+            step = float(self.meta.get("max_joint_step", 0.0))
+            if step > 0.0:  # PPOConfig.max_joint_step
+                x = step * np.tanh(x / step)
             x = x + raw[..., : self.action_size]
         if clip:
             x = np.clip(x, self.joint_lower, self.joint_upper)

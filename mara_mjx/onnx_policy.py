@@ -15,7 +15,8 @@ computes, in float32:
     x = clip((x - mean) / sqrt(var + 1e-8), -obs_clip, obs_clip)   (observation normaliser)
     x = x * visible                                             (hidden_obs set to 0)
     x = tanh(x @ W_i + b_i) ..., then x @ W_L + b_L             (the actor MLP)
-    output action          (N, 6) rad: x (+ obs[:, :6] with relative_actions)
+    output action          (N, 6) rad: x (+ obs[:, :6] with relative_actions; before
+                           that x = m tanh(x / m) with max_joint_step m > 0)
     output action_clipped  (N, 6) rad: action clipped to the joint limits, as the env does
 
 The export metadata (observation layout, joint names, limits, units, source) is stored as
@@ -109,6 +110,10 @@ def build_model(policy: Any) -> Any:
         if i < n - 1:
             x = node("Tanh", [x], f"tanh_{i}")
     if meta.get("relative_actions", False):
+        step = float(meta.get("max_joint_step", 0.0))
+        if step > 0.0:  # m tanh(x / m) (PPOConfig.max_joint_step)
+            m = const("max_joint_step", np.array(step, np.float32))
+            x = node("Mul", [node("Tanh", [node("Div", [x, m], "step_div")], "step_tanh"), m], "step")
         q = node(
             "Slice",
             [

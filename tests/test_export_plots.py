@@ -80,10 +80,11 @@ def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bo
 
 
 @pytest.mark.parametrize(
-    ("env_name", "normalize", "relative"), [("MARA", True, False), ("MARAOrient", False, True)]
+    ("env_name", "normalize", "relative", "step"),
+    [("MARA", True, False, 0.0), ("MARAOrient", False, True, 0.05)],
 )
-def test_export_matches_make_policy(tmp_path, env_name, normalize, relative):
-    path = make_run(tmp_path / "run", env_name, normalize, relative=relative)
+def test_export_matches_make_policy(tmp_path, env_name, normalize, relative, step):
+    path = make_run(tmp_path / "run", env_name, normalize, relative=relative, max_joint_step=step)
     out = tmp_path / "policy.npz"
     from mara_mjx.export import export_policy
 
@@ -104,6 +105,10 @@ def test_export_matches_make_policy(tmp_path, env_name, normalize, relative):
     assert np.abs(expected).max() > 0.1  # not the near-zero init: the check has teeth
     np.testing.assert_allclose(got, expected, atol=1e-5, rtol=1e-6)
     np.testing.assert_allclose(policy(obs[0]), expected[0], atol=1e-5, rtol=1e-6)
+    assert policy.meta["max_joint_step"] == step
+    if step:  # max_joint_step: every joint target within step of the observed joints
+        moved = np.abs(got - obs[:, :6])
+        assert 0.5 * step < moved.max() <= step + 1e-4  # float32 rounding of q + d - q
 
     env = mara_mjx.make(env_name)
     np.testing.assert_array_equal(policy.joint_lower, env.joint_lower.astype(np.float32))
@@ -122,6 +127,17 @@ def test_export_matches_make_policy(tmp_path, env_name, normalize, relative):
         policy(np.zeros(size + 1))
     with pytest.raises(ValueError, match="numeric"):
         policy(np.array(["x"] * size))
+
+
+def test_export_refuses_task_space_policies(tmp_path):
+    """A task_space_actions policy needs the arm's Jacobian: a clear ExportError, nothing
+    written."""
+    from mara_mjx.export import ExportError, export_policy
+
+    make_run(tmp_path / "run", "MARA", True, relative=True, task_space_actions=True)
+    with pytest.raises(ExportError, match="task_space_actions"):
+        export_policy(tmp_path / "run", tmp_path / "policy.npz")
+    assert not (tmp_path / "policy.npz").exists()
 
 
 def test_export_cli(tmp_path, capsys):

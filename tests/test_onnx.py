@@ -21,12 +21,16 @@ ort = pytest.importorskip("onnxruntime")
 
 
 @pytest.mark.parametrize(
-    ("env_name", "normalize", "relative", "canonical"),
-    [("MARA", True, False, False), ("MARAOrient", True, True, True)],
+    ("env_name", "normalize", "relative", "canonical", "step"),
+    [("MARA", True, False, False, 0.0), ("MARAOrient", True, True, True, 0.05)],
 )
-def test_onnx_policy_matches_the_jax_policy(tmp_path, env_name, normalize, relative, canonical):
+def test_onnx_policy_matches_the_jax_policy(
+    tmp_path, env_name, normalize, relative, canonical, step
+):
     quat = {"canonical_quat": True, "quat_index": 9} if canonical else {}
-    path = make_run(tmp_path / "run", env_name, normalize, relative=relative, **quat)
+    path = make_run(
+        tmp_path / "run", env_name, normalize, relative=relative, max_joint_step=step, **quat
+    )
     out = export_policy(tmp_path / "run", tmp_path / "policy.onnx")
     model = onnx.load(str(out))
     ops = {n.op_type for n in model.graph.node}
@@ -47,6 +51,8 @@ def test_onnx_policy_matches_the_jax_policy(tmp_path, env_name, normalize, relat
     expected = np.asarray(reference(jnp.asarray(obs)))
     assert np.abs(expected).max() > 0.1  # not the near-zero init: the check has teeth
     np.testing.assert_allclose(action, expected, atol=1e-5, rtol=0)
+    if step:  # max_joint_step squashes the joint displacement
+        assert 0.5 * step < np.abs(action - obs[:, :6]).max() <= step + 1e-4
     lower, upper = np.asarray(meta["action"]["lower"]), np.asarray(meta["action"]["upper"])
     np.testing.assert_allclose(clipped, np.clip(expected, lower, upper), atol=1e-5, rtol=0)
     one = session.run(["action"], {"obs": obs[:1]})[0]

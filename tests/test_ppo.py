@@ -578,3 +578,66 @@ def _plain(x):
     if jnp.issubdtype(x.dtype, jax.dtypes.prng_key):
         return jax.random.key_data(x)
     return x
+
+
+def test_task_space_actions_are_one_damped_least_squares_step():
+    """task_space_actions: mean = q + J^T (J J^T + lambda^2 I)^-1 (scaled actor output), J the
+    TCP Jacobian at the observed q, checked against C MuJoCo's mj_jacSite; the log-std and
+    value are those of the joint-space network; invalid combinations are refused."""
+    import mujoco
+
+    from mara_mjx.envs import task_space
+    from mara_mjx.envs.arm import load_model
+
+    obs = jnp.array(
+        [[0.3, -0.4, 0.8, 0.1, 0.9, -0.2, 0.05, -0.1, 0.2, 0.0, 0.0, 0.0],
+         [-1.2, 0.6, -0.3, 2.0, 1.1, 0.4, -0.3, 0.02, 0.1, 0.0, 0.0, 0.0]]
+    )  # fmt: skip
+    out = {}
+    for task in (False, True):
+        config = PPOConfig(relative_actions=True, task_space_actions=task)
+        network = make_network(config, 6)
+        params = network.init(jax.random.key(3), obs[0], obs[0])
+        out[task] = forward(network, params, None, obs, config.obs_clip)
+    u = out[False][0] - obs[:, :6]  # the actor's raw output (same params both times)
+    assert float(jnp.abs(u).max()) > 1e-4
+    model = load_model()
+    data = mujoco.MjData(model)
+    scale = np.array([task_space.POSITION_SCALE] * 3 + [task_space.ROTATION_SCALE] * 3)
+    for i in range(len(obs)):
+        data.qpos[:] = np.asarray(obs[i, :6])
+        mujoco.mj_forward(model, data)
+        jacp, jacr = np.zeros((3, 6)), np.zeros((3, 6))
+        mujoco.mj_jacSite(model, data, jacp, jacr, model.site("tcp").id)
+        jac = np.vstack([jacp, jacr])
+        gram = jac @ jac.T + task_space.DAMPING**2 * np.eye(6)
+        dq = jac.T @ np.linalg.solve(gram, np.asarray(u[i], np.float64) * scale)
+        np.testing.assert_allclose(out[True][0][i], np.asarray(obs[i, :6]) + dq, atol=2e-5)
+    np.testing.assert_array_equal(out[True][1], out[False][1])
+    np.testing.assert_array_equal(out[True][2], out[False][2])
+    with pytest.raises(ValueError, match="relative_actions"):
+        PPOConfig(task_space_actions=True)
+    with pytest.raises(ValueError, match="6 joints"):
+        net = make_network(PPOConfig(relative_actions=True, task_space_actions=True), 4)
+        net.init(jax.random.key(0), obs[0], obs[0])
+
+
+def test_max_joint_step_squashes_the_mean_and_is_validated():
+    """max_joint_step m: mean = q + m tanh(out / m), so every joint target is within m of
+    the observed joints and small outputs pass nearly unchanged; invalid values refused."""
+    obs = jnp.array([[0.3, -0.4, 0.8, 0.1, 0.9, -0.2, 0.05, -0.1, 0.2, 0.0, 0.0, 0.0]])
+    config = PPOConfig(relative_actions=True)
+    network = make_network(config, 6)
+    params = network.init(jax.random.key(0), obs[0], obs[0])
+    params = jax.tree.map(lambda x: 3.0 * x + 0.2, params)  # outputs well beyond m
+    free = forward(network, params, None, obs, config.obs_clip)[0] - obs[:, :6]
+    m = 0.015
+    limited = make_network(config.replace(max_joint_step=m), 6)
+    got = forward(limited, params, None, obs, config.obs_clip)[0] - obs[:, :6]
+    assert float(jnp.abs(free).max()) > 10 * m  # the squash has something to do
+    np.testing.assert_allclose(got, m * jnp.tanh(free / m), rtol=1e-5, atol=1e-7)
+    assert float(jnp.abs(got).max()) <= m * (1 + 1e-6)
+    with pytest.raises(ValueError, match="relative_actions"):
+        PPOConfig(max_joint_step=0.01)
+    with pytest.raises(ValueError, match="max_joint_step"):
+        PPOConfig(relative_actions=True, max_joint_step=-0.1)

@@ -85,6 +85,22 @@ class PPOConfig(_ConfigMixin):
     """The Gaussian mean is the current joint positions (the observation's first entries)
     plus the actor's output, instead of the actor's output alone (baselines). The env's
     action is still absolute joint targets; only the policy's parametrisation changes."""
+    task_space_actions: bool = False
+    """With relative_actions: the actor's output is a TCP displacement (position, then
+    rotation, world frame) that one damped-least-squares step through the nominal arm's
+    Jacobian at the observed joints turns into the joint displacement
+    (mara_mjx.envs.task_space), instead of the joint displacement itself. The Gaussian, its
+    noise and the env's action stay in joint space; reaching a pose becomes a nearly linear
+    function of the observation in every arm posture (benchmarks/NOTES.md section 20).
+    MARA arms only (6 joints, q first in the observation)."""
+    max_joint_step: float = 0.0
+    """With relative_actions, > 0: the most each joint target may differ from the observed
+    joint position (rad per control step). The mean's displacement is squashed to
+    m tanh(delta / m) and the rollout's sampled actions are clipped to q +- m (the log-prob
+    is the unclipped sample's, as for any clipped action). For policies meant for the real
+    driver, whose servos move at most velocity x control_dt per step (0.3 rad/s x 0.05 s =
+    0.015 rad): a policy trained on the teleporting train driver otherwise learns to jump
+    through obstacles and far across joint space (benchmarks/NOTES.md section 20). 0: off."""
     hidden_obs: tuple[int, ...] = ()
     """Observation indices that neither network sees (set to 0 after normalisation), e.g.
     9 10 11 for the TCP velocity of MARA/MARACollision (13 14 15 for the Orient tasks)."""
@@ -223,6 +239,17 @@ class PPOConfig(_ConfigMixin):
             raise ValueError(
                 f"hidden_obs={self.hidden_obs!r} must be a tuple of observation indices >= 0"
             )
+        if self.task_space_actions and not self.relative_actions:
+            raise ValueError(
+                "task_space_actions=true needs relative_actions=true (the TCP displacement is "
+                "taken from the observed joints); set both, or task_space_actions=false"
+            )
+        _check_range("max_joint_step", self.max_joint_step, 0.0, math.pi)
+        if self.max_joint_step > 0.0 and not self.relative_actions:
+            raise ValueError(
+                f"max_joint_step={self.max_joint_step} needs relative_actions=true (the limit "
+                "is around the observed joints); set both, or max_joint_step=0"
+            )
         _check_range("bound_coef", self.bound_coef, 0.0, math.inf)
         _check_range("train_reward_until", self.train_reward_until, 0.0, 1.0, low_open=True)
         _check_range("train_collision_penalty", self.train_collision_penalty, 0.0, math.inf)
@@ -235,6 +262,7 @@ class PPOConfig(_ConfigMixin):
             "normalize_obs",
             "normalize_advantages",
             "relative_actions",
+            "task_space_actions",
             "canonical_quat",
         ):
             if not isinstance(getattr(self, name), bool):

@@ -9,7 +9,12 @@ the joint limits, either the actor's output itself (`relative_actions=False`, ba
 or the current joint positions (the first `action_size` raw observation entries, which
 the MARA observation starts with) plus the actor's output (`relative_actions=True`, so
 that "stay" is the output 0). The log-std can be floored (`log_std_floor`), and chosen
-observation entries hidden from both networks (`hidden_obs`).
+observation entries hidden from both networks (`hidden_obs`). With `task_space_actions`
+the actor's output is a TCP displacement that one damped-least-squares step through the
+arm's Jacobian turns into the joint displacement (mara_mjx.envs.task_space). With
+`max_joint_step` m > 0 the joint displacement is squashed to m tanh(delta / m), so the
+mean moves each joint less than m per control step (and the trainer clips its samples to
+the same box), as the real driver's servos move at most `velocity` x control_dt.
 
     network = make_network(config, action_size)
     mean, log_std, value = forward(network, params, obs_stats, obs, config.obs_clip)
@@ -52,6 +57,8 @@ class ActorCritic(nn.Module):
     log_std_floor: float = -20.0
     hidden_obs: tuple[int, ...] = ()
     quat_index: int = -1
+    task_space: bool = False
+    max_joint_step: float = 0.0
 
     @nn.compact
     def __call__(
@@ -65,7 +72,20 @@ class ActorCritic(nn.Module):
         if self.relative_actions:
             if raw_obs is None:
                 raise ValueError("relative_actions: the network needs the raw observation")
-            mean = mean + raw_obs[..., : self.action_size]
+            q = raw_obs[..., : self.action_size]
+            if self.task_space:  # the output is a TCP displacement (envs/task_space.py)
+                if self.action_size != 6:
+                    raise ValueError(
+                        f"task_space_actions needs the MARA arm's 6 joints, got {self.action_size}"
+                    )
+                from mara_mjx.envs.task_space import task_to_joint
+
+                delta = task_to_joint(q, mean) - q
+            else:
+                delta = mean
+            if self.max_joint_step > 0.0:  # |delta| < m per joint, smoothly (PPOConfig)
+                delta = self.max_joint_step * jnp.tanh(delta / self.max_joint_step)
+            mean = q + delta
         value = MLP(self.hidden_sizes, 1, 1.0, name="critic")(obs)[..., 0]
         log_std = self.param(
             "log_std", nn.initializers.constant(self.init_log_std), (self.action_size,)
@@ -95,6 +115,8 @@ def make_network(config: Any, action_size: int) -> ActorCritic:
         config.log_std_floor,
         tuple(config.hidden_obs),
         config.quat_index if config.canonical_quat else -1,
+        config.task_space_actions,
+        config.max_joint_step,
     )
 
 
