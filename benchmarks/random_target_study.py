@@ -45,7 +45,7 @@ def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
     sizes = {"num_envs": 16, "num_steps": 8, "num_minibatches": 4} if args.tiny else {}
     if args.total_timesteps:
         sizes["total_timesteps"] = args.total_timesteps
-    config = PRESETS[default_preset(task)].replace(**sizes, **overrides)
+    config = PRESETS[default_preset(task)].replace(**{**sizes, **overrides})  # variant wins
     trainer = make_train(env, config, updates_per_call=args.chunk, devices=1)
     config = trainer.config
     st = make_seed_trainer(trainer, seeds)
