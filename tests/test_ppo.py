@@ -641,3 +641,30 @@ def test_max_joint_step_squashes_the_mean_and_is_validated():
         PPOConfig(max_joint_step=0.01)
     with pytest.raises(ValueError, match="max_joint_step"):
         PPOConfig(relative_actions=True, max_joint_step=-0.1)
+
+
+def test_orientation_bonus_peaks_at_the_exact_pose_and_skips_collisions():
+    """orientation_bonus: w exp(-d / d0) exp(-theta / theta0), 0 on colliding steps; its
+    slope in theta at the goal is w / theta0; cleared for a task without orientation."""
+    import mara_mjx
+    from mara_mjx.ppo.config import for_env
+    from mara_mjx.ppo.train import orientation_bonus
+
+    config = PPOConfig(orientation_bonus=5.0, orientation_bonus_angle=0.1)
+    metrics = {
+        "distance": jnp.array([0.0, 0.0, 0.001, 0.0, 0.0]),
+        "angle": jnp.array([0.0, 0.01, 0.0, 0.2, 0.0]),
+        "collided": jnp.array([False, False, False, False, True]),
+    }
+    got = np.asarray(orientation_bonus(metrics, config))
+    expected = 5.0 * np.exp(-np.array([0, 0, 0.001, 0, 0]) / 0.005 - np.array([0, 0.01, 0, 0.2, 0]) / 0.1)
+    expected[4] = 0.0
+    np.testing.assert_allclose(got, expected, rtol=1e-6)
+    assert got[0] == got.max() and got[4] == 0.0
+    # one degree near the goal is worth ~ w / theta0 * pi / 180 = 0.87 (the env's: ~0.01)
+    slope = (got[0] - got[1]) / 0.01
+    assert 45.0 < slope < 50.0
+    assert for_env(config, mara_mjx.make("MARA")).orientation_bonus == 0.0
+    assert for_env(config, mara_mjx.make("MARAOrient")).orientation_bonus == 5.0
+    with pytest.raises(ValueError, match="orientation_bonus_angle"):
+        PPOConfig(orientation_bonus_angle=0.0)

@@ -143,6 +143,20 @@ class PPOConfig(_ConfigMixin):
     of every max_episode_steps / num_steps), measured in benchmarks/NOTES.md section 19.
     The first episodes are cut short (truncated: GAE bootstraps through them). Ignored for
     an env whose state has no `step` counter."""
+    orientation_bonus: float = 0.0
+    """Training only: add w exp(-d / orientation_bonus_distance) exp(-theta /
+    orientation_bonus_angle) to every non-colliding step's reward (d the RMS position
+    error, theta the orientation angle; w this value, in the env's reward units, whose
+    maximum is 10), for the whole training. The env's own reward weighs one millimetre of
+    position like about 200 degrees of orientation near the goal (benchmarks/NOTES.md
+    section 20); this term's maximiser is the same exact pose and its slope in theta is
+    w / orientation_bonus_angle there. 0 is off; cleared for an env without quat_err in
+    its observation (the orientation is then not part of the task)."""
+    orientation_bonus_angle: float = 0.1
+    """rad: the angle scale of `orientation_bonus`."""
+    orientation_bonus_distance: float = 0.005
+    """m: the distance scale of `orientation_bonus` (the bonus fades in as the position
+    converges)."""
     train_collision_penalty: float = 0.0
     """Training only: subtract this times the spec's collision penalty C (delta (2 min(d,
     0.5))^eta, the env's delta and eta) from every colliding step's reward, moving linearly
@@ -253,6 +267,13 @@ class PPOConfig(_ConfigMixin):
         _check_range("bound_coef", self.bound_coef, 0.0, math.inf)
         _check_range("train_reward_until", self.train_reward_until, 0.0, 1.0, low_open=True)
         _check_range("train_collision_penalty", self.train_collision_penalty, 0.0, math.inf)
+        _check_range("orientation_bonus", self.orientation_bonus, 0.0, math.inf)
+        _check_range(
+            "orientation_bonus_angle", self.orientation_bonus_angle, 0.0, math.pi, low_open=True
+        )
+        _check_range(
+            "orientation_bonus_distance", self.orientation_bonus_distance, 0.0, 1.0, low_open=True
+        )
         _check_range("train_reset_noise", self.train_reset_noise, 0.0, 0.5)
         reward_curriculum(self.train_reward)
         if not _is_int(self.quat_index) or self.quat_index < -1:
@@ -310,7 +331,8 @@ def for_env(config: PPOConfig, env: Any) -> PPOConfig:
     """`config` with the env-dependent fields resolved: `quat_index` from the env's
     `observation_layout` (a list of {name, start, stop, ...}; -1 where it has no
     quat_err), `train_reward` and `train_collision_penalty` cleared for an env whose
-    params have no `reward`, and `train_reset_noise` for one without `reset_noise`."""
+    params have no `reward`, `train_reset_noise` for one without `reset_noise`, and
+    `orientation_bonus` for one without quat_err."""
     layout = getattr(env, "observation_layout", None) or []
     starts = [int(part["start"]) for part in layout if part.get("name") == "quat_err"]
     index = starts[0] if (config.canonical_quat and starts) else -1
@@ -322,6 +344,8 @@ def for_env(config: PPOConfig, env: Any) -> PPOConfig:
         resolved = resolved.replace(train_reward="", train_collision_penalty=0.0)
     if not hasattr(getattr(env, "default_params", None), "reset_noise"):
         resolved = resolved.replace(train_reset_noise=0.0)
+    if not starts and resolved.orientation_bonus > 0.0:  # no orientation in the task
+        resolved = resolved.replace(orientation_bonus=0.0)
     return resolved
 
 

@@ -136,6 +136,17 @@ def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
     )
 
 
+def orientation_bonus(metrics: dict[str, jax.Array], config: PPOConfig) -> jax.Array:
+    """w exp(-d / d0) exp(-theta / theta0) on non-colliding steps (PPOConfig.orientation_bonus)."""
+    bonus = config.orientation_bonus * jnp.exp(
+        -metrics["distance"] / config.orientation_bonus_distance
+        - metrics["angle"] / config.orientation_bonus_angle
+    )
+    if "collided" in metrics:
+        bonus = jnp.where(metrics["collided"] > 0, 0.0, bonus)
+    return bonus
+
+
 def make_train(
     env: Any, config: PPOConfig, updates_per_call: int = 1, devices: int | None = None
 ) -> Trainer:
@@ -359,6 +370,8 @@ def make_train(
                 traj.metrics["distance"], traj.metrics["collided"], own.delta, own.eta
             )
             reward = reward - (1.0 - frac) * config.train_collision_penalty * penalty
+        if config.orientation_bonus > 0.0:  # PPOConfig.orientation_bonus
+            reward = reward + orientation_bonus(traj.metrics, config)
         _, _, value = policy(state.params, stats, traj.obs)
         _, _, final_value = policy(state.params, stats, traj.final_obs)
         next_value = final_value * (1.0 - traj.terminated.astype(jnp.float32))
