@@ -85,9 +85,7 @@ def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
     )
     fn = make_evaluate(env, ev_config, params)
     if args.real_velocity:
-        real_env = mara_mjx.make(
-            task, driver="real", velocity=args.real_velocity, **env_overrides
-        )
+        real_env = mara_mjx.make(task, driver="real", velocity=args.real_velocity, **env_overrides)
         real_params = target_eval.with_targets(
             real_env.make_params(reset_noise=ev_config.noise), poses.pos, poses.quat
         )
@@ -160,7 +158,9 @@ def main():
     p.add_argument("--poses", type=int, default=1000)
     p.add_argument("--tiny", action="store_true", help="CPU smoke test sizes")
     p.add_argument(
-        "--real-velocity", type=float, default=0.0,
+        "--real-velocity",
+        type=float,
+        default=0.0,
         help="also evaluate every policy on the real driver at this servo speed (rad/s)",
     )
     p.add_argument("--out", default="random_target_study.json")

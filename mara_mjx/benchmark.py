@@ -46,6 +46,16 @@ Studies:
         steps/s, the measured env steps/s (as in `env`) and the fraction reached, for
         `--tasks` x `--drivers` x `--sizes` / `--real_sizes`. (`mara_mjx.bench.limit`)
 
+  tta   time to accuracy from command start, as users see it: for each of `--seeds`
+        (default 0 1 2) the train CLI (`python -m mara_mjx.train --env TASK --seed S`,
+        default preset, MARACollisionOrient) as a fresh process, cold (an empty
+        compilation-cache folder) and warm (the same folder again): seconds from
+        launching it to a deterministic mean per-axis error below 5 mm and 1 mm, the
+        whole command, env steps/s, a hash of the final state; medians over seeds. Then
+        the PPO's env steps/s with XLA's deterministic GPU ops and without, and the env
+        step's FLOPs and bytes against the device's measured ceilings (the `limit`
+        study's code, one size). (`mara_mjx.bench.tta`)
+
 scaling  env steps/s of the batched step and of PPO against the number of devices
         (1, 2, 4, ... all; weak scaling with a fixed per-device batch, and strong
         scaling of the default PPO batch), with the efficiency per added device

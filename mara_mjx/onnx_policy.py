@@ -113,7 +113,8 @@ def build_model(policy: Any) -> Any:
         step = float(meta.get("max_joint_step", 0.0))
         if step > 0.0:  # m tanh(x / m) (PPOConfig.max_joint_step)
             m = const("max_joint_step", np.array(step, np.float32))
-            x = node("Mul", [node("Tanh", [node("Div", [x, m], "step_div")], "step_tanh"), m], "step")
+            squashed = node("Tanh", [node("Div", [x, m], "step_div")], "step_tanh")
+            x = node("Mul", [squashed, m], "step")
         q = node(
             "Slice",
             [

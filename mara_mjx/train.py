@@ -29,11 +29,11 @@ import os
 import time
 
 
-def _command_start() -> float:
-    """time.monotonic() at the start of this process (Linux: from /proc, so the package
-    imports count too), else now."""
+def _command_start(pid: int | str = "self") -> float:
+    """time.monotonic() at the start of process `pid`, by default this one (Linux: from
+    /proc, so the package imports count too), else now."""
     try:
-        with open("/proc/self/stat") as f:
+        with open(f"/proc/{pid}/stat") as f:
             start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])
         with open("/proc/uptime") as f:
             uptime = float(f.read().split()[0])

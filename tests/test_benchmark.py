@@ -58,6 +58,7 @@ def runs(tmp_path_factory):
         "env": _popen(_cli("env", *tiny, "--drivers", "train")),
         "peers": _popen(_cli("peers", "--quick", "--skip_mjx", "--out", str(out))),
         "limit": _popen(_cli("limit", *tiny, "--drivers", "train")),
+        "tta": _popen(_cli("tta", *tiny)),
         "train": ppo_proc,
         "brax": ppo_proc,
     }
@@ -234,6 +235,71 @@ def test_limit_study_quick(runs):
     assert rec["fraction_of_bound"] == pytest.approx(rec["env_steps_per_s"] / bound)
 
 
+def test_tta_study_quick(runs):
+    """The train CLI as a user runs it, cold then warm, with both settings of XLA's
+    deterministic GPU ops, and the roofline of its env step."""
+    data = _finish(runs, "tta")
+    assert META_KEYS <= set(data) and data["study"] == "tta"
+    assert data["settings"]["XLA_PYTHON_CLIENT_PREALLOCATE"] == "false"  # trainings share it
+    records = data["records"]
+    found = {(r["part"], r["cache"], r["xla_ops"]): r for r in records if r["kind"] == "run"}
+    cold, warm = found["tta", "cold", "cli default"], found["tta", "warm", "cli default"]
+    det = found["xla_ops", "off", "deterministic"]
+    nondet = found["xla_ops", "off", "non-deterministic"]
+    assert len(found) == 4
+    for r in found.values():
+        assert r["task"] == "MARA" and r["seed"] == 0 and r["env_steps"] == 64
+        assert "python -m mara_mjx.train --env MARA --seed 0 " in r["command"]
+        assert abs(r["launch_offset_s"]) < 1.0  # the child's start, read from /proc
+        assert 0 < r["first_call_s"] <= r["cli_command_time_s"] <= r["command_s"]
+        assert r["env_steps_per_s"] > 0 and len(r["state_hash"]) == 16
+        for mm in (5, 1):  # 64 env steps reach neither
+            assert r[f"to_{mm}mm_s"] is None and r[f"to_{mm}mm_env_steps"] is None
+    assert len({r["command"].split("--compilation_cache ")[1] for r in (cold, warm)}) == 1
+    assert warm["same_bits_as_cold"] is True  # its programs from the cache: the same bits
+    assert "--xla_gpu_deterministic_ops=true" in det["xla_flags_given"]
+    assert "--xla_gpu_deterministic_ops=false" in nondet["xla_flags_given"]
+    assert "xla_gpu_deterministic_ops" not in cold["xla_flags_given"]  # the CLI chooses
+    medians = [r for r in records if r["kind"] == "median"]
+    assert [(m["cache"], m["seeds"], m["reached_1mm"]) for m in medians] == [
+        ("cold", [0], 0),
+        ("warm", [0], 0),
+    ]
+    assert medians[1]["command_s"] == warm["command_s"]
+    (limit,) = [r for r in records if r["kind"] == "limit"]
+    assert (limit["task"], limit["driver"], limit["num_envs"]) == ("MARA", "train", 4)
+    assert limit["flops_per_env_step"] > 0 and limit["bytes_per_env_step"] > 0
+    assert limit["ppo_env_steps_per_s"] == warm["env_steps_per_s"]
+    assert limit["ppo_fraction_of_bound"] == pytest.approx(
+        limit["ppo_env_steps_per_s"] / limit["bound_env_steps_per_s"]
+    )
+
+
+def test_tta_reads_the_cli_times_on_the_launch_clock(tmp_path):
+    from mara_mjx.bench.tta import median_record, read_run
+
+    rows = ["update,env_steps,time_s,steps_per_s,det_error_mm"]
+    rows += ["1,10,4.0,2.0,9.0", "2,20,4.0,2.0,4.0", "3,30,5.0,100.0,2.0", "4,40,6.0,300.0,0.5"]
+    (tmp_path / "progress.csv").write_text("\n".join(rows) + "\n")
+    hit = {"time_s": 4.0, "env_steps": 20, "update": 2}
+    summary = {"time_to_accuracy": {"5mm": hit}, "command_time_s": 7.0}
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    r = read_run(tmp_path, offset=0.25)
+    assert (r["to_5mm_s"], r["to_5mm_env_steps"], r["to_1mm_s"]) == (4.25, 20, None)
+    assert (r["first_call_s"], r["cli_command_time_s"]) == (4.25, 7.25)
+    assert r["env_steps_per_s"] == 200.0  # median of the rows after the first call
+    assert r["final_det_error_mm"] == 0.5 and r["state_hash"] is None
+    base = {k: 1.0 for k in ("command_s", "cli_command_time_s", "first_call_s")}
+    runs = [
+        {**base, "seed": i, "env_steps_per_s": 1.0, "to_5mm_s": t5, "to_5mm_env_steps": t5,
+         "to_1mm_s": t1, "to_1mm_env_steps": t1}
+        for i, (t5, t1) in enumerate(((3.0, None), (5.0, 8.0), (None, None)))
+    ]  # fmt: skip
+    m = median_record(runs, "cold")
+    assert m["to_5mm_s"] == 5.0 and m["reached_5mm"] == 2  # unreached: later than any
+    assert m["to_1mm_s"] is None and m["reached_1mm"] == 1  # the median seed never got there
+
+
 def test_compile_clock_counts_overlapping_spans_once():
     with CompileClock() as clock:
         t0 = clock.start
@@ -284,6 +350,10 @@ def test_bad_input_as_a_user_sees_it():
         (["train", "--num_minibatches", "7"], "does not divide"),
         (["scaling", "--envs_per_device", "0"], "must be an int >= 1"),
         (["scaling", "--device_counts", "64"], "not available"),
+        (["tta", "--tasks", "MARA", "MARAOrient"], "tta trains one task"),
+        (["tta", "--train_args", "--seed 3"], "the study sets --seed itself"),
+        (["tta", "--train_args=--no_such_flag"], "unrecognized arguments: --no_such_flag"),
+        (["tta", "--train_args", "--num_envs 0"], "num_envs must be an int >= 1"),
     ],
 )
 def test_bad_input_gives_clear_error(args, message, capsys, compiled):

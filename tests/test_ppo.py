@@ -657,7 +657,8 @@ def test_orientation_bonus_peaks_at_the_exact_pose_and_skips_collisions():
         "collided": jnp.array([False, False, False, False, True]),
     }
     got = np.asarray(orientation_bonus(metrics, config))
-    expected = 5.0 * np.exp(-np.array([0, 0, 0.001, 0, 0]) / 0.005 - np.array([0, 0.01, 0, 0.2, 0]) / 0.1)
+    d, theta = np.array([0, 0, 0.001, 0, 0]), np.array([0, 0.01, 0, 0.2, 0])
+    expected = 5.0 * np.exp(-d / 0.005 - theta / 0.1)
     expected[4] = 0.0
     np.testing.assert_allclose(got, expected, rtol=1e-6)
     assert got[0] == got.max() and got[4] == 0.0

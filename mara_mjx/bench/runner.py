@@ -50,6 +50,10 @@ class BenchConfig(ConfigMixin):
     QUICK: ClassVar[dict[str, Any]] = {}
     POSITIVE: ClassVar[tuple[str, ...]] = ()
     """Int fields (or tuples of ints) that must be >= 1."""
+    SHARES_DEVICE: ClassVar[bool] = False
+    """The study starts other JAX processes (users' commands) while its own backend is
+    up: its process leaves JAX's GPU memory preallocation off, so that they get the
+    memory (`configure`)."""
 
     def __post_init__(self):
         from mara_mjx.envs import registered
@@ -70,9 +74,10 @@ class Study(NamedTuple):
     config: type[BenchConfig]
     run: Callable[[Any], list[dict[str, Any]]]
     table: dict[str, Any]
-    """Title, markdown columns (header, record -> text), optional notes (records -> lines
-    under the table), and either plot(records, title, path) or, for the default plot of
-    env steps/s vs env count, series (record -> label) and style (record -> line style)."""
+    """Title, markdown columns (header, record -> text), optional rows (records -> the
+    records shown as table rows; default all), optional notes (records -> lines under
+    the table), and either plot(records, title, path) or, for the default plot of env
+    steps/s vs env count, series (record -> label) and style (record -> line style)."""
     summary: str
 
 
@@ -84,6 +89,7 @@ STUDIES = {
     "brax": "mara_mjx.bench.ppo:BRAX",
     "limit": "mara_mjx.bench.limit:STUDY",
     "scaling": "mara_mjx.bench.scaling:STUDY",
+    "tta": "mara_mjx.bench.tta:STUDY",
 }
 
 
@@ -153,7 +159,7 @@ def write_results(
         "| " + " | ".join(headers) + " |",
         "|" + "|".join("---" for _ in headers) + "|",
     ]
-    for r in records:
+    for r in spec.get("rows", list)(records):
         lines.append("| " + " | ".join(f(r) for _, f in spec["columns"]) + " |")
     if "notes" in spec:
         lines += ["", *spec["notes"](records)]
@@ -203,18 +209,31 @@ def plot_throughput(
     finish_figure(fig, ax, path, title, "environments", "env steps / s")
 
 
-def configure(deterministic: bool, compilation_cache: str | None = None) -> dict[str, str]:
+# The variables `configure` may change, as they were before it did: the environment of a
+# study's subprocesses, which run users' commands (mara_mjx.bench.tta).
+USER_ENV: dict[str, str | None] = {}
+
+
+def configure(
+    deterministic: bool, compilation_cache: str | None = None, preallocate: bool = True
+) -> dict[str, str]:
     """Before the backend starts: float32 matmuls at HIGHEST precision (unless
     JAX_DEFAULT_MATMUL_PRECISION says otherwise) and, unless `deterministic` or XLA_FLAGS
     says otherwise, XLA's faster non-deterministic GPU ops (the training CLI's default is
     the reverse; `configure_jax` is shared). The persistent compilation cache is off
     unless `compilation_cache` (the flag), MARA_MJX_COMPILATION_CACHE or
     JAX_COMPILATION_CACHE_DIR turns it on: the studies report compile (cold start)
-    times. Returns what is in effect, for the JSON."""
+    times. Without `preallocate`, XLA_PYTHON_CLIENT_PREALLOCATE=false (unless set).
+    Returns what is in effect, for the JSON; the variables' earlier values go to
+    `USER_ENV`."""
     import os
 
     from mara_mjx import jax_cache
 
+    for name in ("XLA_FLAGS", "XLA_PYTHON_CLIENT_PREALLOCATE"):
+        USER_ENV[name] = os.environ.get(name)
+    if not preallocate and "XLA_PYTHON_CLIENT_PREALLOCATE" not in os.environ:
+        os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
     flags = os.environ.get("XLA_FLAGS", "")
     if not deterministic and "xla_gpu_deterministic_ops" not in flags:
         os.environ["XLA_FLAGS"] = (flags + " --xla_gpu_deterministic_ops=false").strip()
@@ -224,6 +243,7 @@ def configure(deterministic: bool, compilation_cache: str | None = None) -> dict
     folder = configure_jax(compilation_cache)
     return {
         "XLA_FLAGS": os.environ.get("XLA_FLAGS", ""),
+        "XLA_PYTHON_CLIENT_PREALLOCATE": os.environ.get("XLA_PYTHON_CLIENT_PREALLOCATE", ""),
         "matmul_precision": str(jax.config.jax_default_matmul_precision),
         "compilation_cache": str(folder),
     }
@@ -294,7 +314,8 @@ def main(argv: Sequence[str] | None = None, description: str = "") -> None:
     config = resolve(parser, argv)
     name = next(n for n in STUDIES if load_study(n).config is type(config))
     study = load_study(name)
-    settings = configure(config.deterministic, parser.parse_args(argv).compilation_cache)
+    cache = parser.parse_args(argv).compilation_cache
+    settings = configure(config.deterministic, cache, preallocate=not config.SHARES_DEVICE)
     if hasattr(config, "check_devices"):  # needs the backend, so after configure
         try:
             config.check_devices()

@@ -251,9 +251,7 @@ def make_train(
             env_action = action
             if config.max_joint_step > 0.0:  # samples stay within m of the observed joints
                 q = env_state.obs[..., : action.shape[-1]]
-                env_action = jnp.clip(
-                    action, q - config.max_joint_step, q + config.max_joint_step
-                )
+                env_action = jnp.clip(action, q - config.max_joint_step, q + config.max_joint_step)
             next_state = benv.step(env_state, env_action)
             transition = Transition(
                 obs=env_state.obs,

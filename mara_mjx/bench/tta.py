@@ -1,0 +1,506 @@
+"""The `tta` study of `python -m mara_mjx.benchmark`: time to accuracy from command start,
+as a user of the train CLI sees it, with the PPO's speed under XLA's GPU-op choices and
+the env step against the device's ceilings (issue 14).
+
+On the one task of `--tasks` (default MARACollisionOrient), three parts (`--parts`):
+
+tta      For each of `--seeds`, the user's command, as a fresh subprocess:
+             python -m mara_mjx.train --env TASK --seed S [--preset P] --evaluate false
+                 --plots false --tensorboard false --progress false [--train_args ...]
+                 --out RUN --compilation_cache CACHE
+         twice: `cold`, CACHE a new, empty folder, then `warm`, the same folder (holding
+         the cold run's programs). XLA_FLAGS as the user gave them, so the CLI makes its
+         own choice (for the train driver `--xla_gpu_autotune_level=0`: README,
+         "Reproducible GPU runs"). Read from the run folder: the time to 5 mm and 1 mm
+         (summary.json's `time_to_accuracy`: the CLI's first progress row with
+         `det_error_mm` below each; granularity one jitted call), when the first jitted
+         call (compile included) was done, env steps/s (the median of progress.csv's
+         `steps_per_s` over the rows after the first call: each call's env steps over
+         its seconds, so compile and the host logging between calls are excluded), the
+         final `det_error_mm` and a hash of every array of the final checkpoint (its JSON
+         metadata, which holds paths and times, left out): `same_bits_as_cold` on a warm
+         run says whether the cache changed the result. Per phase, the median over
+         seeds (kind "median"); a seed that never reached a threshold counts as later
+         than any that did, and a median that falls on such a seed is None.
+xla_ops  For the first seed, the same command (no persistent cache: `--compilation_cache
+         false`; `--xla_ops_total_timesteps` env steps) with `--xla_gpu_deterministic_ops
+         =true` and `=false` appended to XLA_FLAGS (an earlier setting of that flag
+         dropped; naming it stops the CLI from adding its own): env steps/s of the PPO
+         with XLA's deterministic GPU ops and with XLA's defaults. The tta runs give the
+         CLI's default, the third choice. The flag is a GPU flag: a CPU parses and ignores
+         it, so there the two runs differ only by noise.
+limit    `mara_mjx.bench.limit.limit_study` (the limit study itself) for the train driver
+         of the task at `--limit_num_envs` environments: XLA's FLOPs and bytes of one env
+         step against the float32 matmul FLOP/s and memory bandwidth measured in the same
+         run, the roofline bound on env steps/s and the env step's measured rate. Also
+         the PPO's warm median env steps/s (tta part) as a fraction of that bound (the PPO
+         does more than step the envs: how far training is from the env step's ceiling).
+         It runs in this process after the trainings, which had the device to
+         themselves: this process keeps JAX's GPU memory preallocation off
+         (`BenchConfig.SHARES_DEVICE`), and the study's `--deterministic` flag acts on
+         this part alone (the train commands get the user's XLA_FLAGS, as above).
+
+Clocks. "From command start" is from the moment this process launches the subprocess
+(`time.monotonic()` just before `subprocess.Popen`). The CLI's own times (progress.csv's
+`time_s`, summary.json's `time_to_accuracy` and `command_time_s`) count from its
+process's start as the kernel records it (`mara_mjx.train._command_start`: /proc/PID/stat,
+so interpreter start-up and imports count). This study reads the child's start the same
+way right after launching it; `launch_offset_s` = child's start - launch (milliseconds;
+slightly negative is possible, since /proc rounds the start down to a clock tick, the
+same rounding as the CLI's, so it cancels) is added to every CLI time. Without /proc
+(not Linux) the CLI counts from its own import and the offset is unknown (None, taken as
+0: the times are then too short by the interpreter's start-up). `command_s` is launch to
+exit (interpreter teardown included), measured here; `cli_command_time_s` is the CLI's
+own (until it wrote summary.json), converted.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import shlex
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+
+from mara_mjx.bench.runner import USER_ENV, BenchConfig, Study
+from mara_mjx.config import check_int
+from mara_mjx.plots import finish_figure
+from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo import logger
+
+QUIET = ["--evaluate", "false", "--plots", "false", "--tensorboard", "false", "--progress", "false"]
+"""As the hand-made measurement (benchmarks/results/time_to_accuracy/README.md)."""
+SET_BY_STUDY = (
+    *("--env", "--seed", "--ppo.seed", "--seeds", "--run.seeds", "--out", "--run.out"),
+    *("--compilation_cache", "--resume", "--preset", "-h", "--help"),
+)
+THRESHOLDS_MM = logger.ACCURACY_THRESHOLDS_MM  # (5, 1): the CLI's milestones
+XLA_OPS = {"deterministic": "true", "non-deterministic": "false"}
+CLI_DEFAULT = "cli default"
+
+
+@dataclasses.dataclass(frozen=True)
+class TTAConfig(BenchConfig):
+    """The tta study's settings."""
+
+    tasks: tuple[str, ...] = ("MARACollisionOrient",)
+    """The registered env to train (one)."""
+    parts: tuple[Literal["tta", "xla_ops", "limit"], ...] = ("tta", "xla_ops", "limit")
+    """Parts to run (module docstring)."""
+    seeds: tuple[int, ...] = (0, 1, 2)
+    """Seeds of the tta part, each trained cold and warm; xla_ops uses the first."""
+    preset: str = ""
+    """The train CLI's --preset ("": the CLI's default for the task)."""
+    train_args: str = ""
+    """More flags for every train command (one string, shell quoting), e.g.
+    "--num_envs 4096 --learning_rate 1e-3" (a single flag alone: --train_args='--flag');
+    they come after the study's --evaluate false ... and so override them. Note that
+    --total_timesteps also stretches the learning-rate schedule and the curricula, so
+    it changes the time to accuracy."""
+    xla_ops_total_timesteps: int = 10_000_000
+    """--total_timesteps of the xla_ops runs (0: as the tta runs)."""
+    limit_num_envs: int = 2048
+    """Environments of the limit part's env step (2048: the default preset's)."""
+    timeout_s: int = 1200
+    """Limit on each train command (seconds)."""
+    work_dir: str = ""
+    """Where a new folder receives the run folders, compilation caches and command logs,
+    and is kept ("": a temporary folder, deleted at the end)."""
+
+    QUICK: ClassVar[dict[str, Any]] = {
+        "seeds": (0,),
+        "train_args": "--num_envs 4 --num_steps 8 --total_timesteps 64 --num_minibatches 2 "
+        "--update_epochs 2 --max_episode_steps 16 --updates_per_call 1",
+        "xla_ops_total_timesteps": 0,
+        "limit_num_envs": 4,
+    }
+    POSITIVE: ClassVar[tuple[str, ...]] = ("limit_num_envs", "timeout_s")
+    SHARES_DEVICE: ClassVar[bool] = True
+
+    def __post_init__(self):
+        super().__post_init__()
+        from mara_mjx.ppo.config import PRESETS
+
+        if len(self.tasks) != 1:
+            raise ValueError(f"tta trains one task; got --tasks {' '.join(self.tasks)}")
+        if not self.parts:
+            raise ValueError("parts: give at least one of tta, xla_ops, limit")
+        if not self.seeds or len(set(self.seeds)) != len(self.seeds):
+            raise ValueError(f"seeds must be distinct and at least one, got {self.seeds}")
+        for seed in self.seeds:
+            check_int("seeds", seed, minimum=0)
+        check_int("xla_ops_total_timesteps", self.xla_ops_total_timesteps, minimum=0)
+        if self.preset and self.preset not in PRESETS:
+            raise ValueError(f"unknown preset {self.preset!r}; choose one of {sorted(PRESETS)}")
+        check_train_args(self.train_args, self.tasks[0], self.preset)
+
+
+def check_train_args(text: str, task: str, preset: str) -> None:
+    """ValueError unless `text` is flags the train CLI accepts and the study does not set."""
+    import mara_mjx
+    from mara_mjx import train as train_cli
+    from mara_mjx.cli import UserError
+
+    try:
+        args = shlex.split(text)
+    except ValueError as e:
+        raise ValueError(f"train_args: {e}") from e
+    taken = [a for a in args if a.split("=")[0] in SET_BY_STUDY]
+    if taken:
+        raise ValueError(f"train_args: the study sets {', '.join(taken)} itself")
+    parser = train_cli.build_parser()
+
+    def fail(message: str) -> None:
+        raise ValueError(f"train_args: {message}")
+
+    parser.error = fail  # argparse reports bad flags through error(); no exit here
+    argv = ["--env", task, *(["--preset", preset] if preset else []), *QUIET, *args]
+    try:
+        plan = train_cli.resolve(parser.parse_args(argv))
+    except UserError as e:
+        raise ValueError(f"train_args: {e}") from e
+    try:  # as the CLI builds it (cheap: nothing compiles)
+        mara_mjx.make(plan.env_name, **plan.env_overrides)
+    except ValueError as e:
+        raise ValueError(f"train_args: cannot build env {plan.env_name}: {e}") from e
+
+
+# ------------------------------------------------------------------- one command
+def child_env(xla_ops: str | None = None) -> dict[str, str]:
+    """This process's environment with the variables the runner changed put back as the
+    user gave them; `xla_ops` ("true"/"false"): --xla_gpu_deterministic_ops set so."""
+    env = dict(os.environ)
+    for name, value in USER_ENV.items():
+        if value is None:
+            env.pop(name, None)
+        else:
+            env[name] = value
+    if xla_ops is not None:
+        flags = env.get("XLA_FLAGS", "").split()
+        flags = [f for f in flags if "xla_gpu_deterministic_ops" not in f]
+        env["XLA_FLAGS"] = " ".join([*flags, f"--xla_gpu_deterministic_ops={xla_ops}"])
+    return env
+
+
+def train_argv(config: TTAConfig, seed: int, out: Path, cache: str, total: int = 0) -> list[str]:
+    """The train command of the module docstring (`total` > 0: --total_timesteps last)."""
+    argv = [sys.executable, "-m", "mara_mjx.train", "--env", config.tasks[0], "--seed", str(seed)]
+    argv += ["--preset", config.preset] if config.preset else []
+    argv += [*QUIET, *shlex.split(config.train_args)]
+    argv += ["--total_timesteps", str(total)] if total else []
+    return argv + ["--out", str(out), "--compilation_cache", cache]
+
+
+def launch(argv: list[str], env: dict[str, str], log: Path, timeout_s: float) -> dict[str, Any]:
+    """Run `argv` (output to `log`); `launch_offset_s` and `command_s` (module docstring).
+    RuntimeError with the end of its output if it fails or runs out of time."""
+    from mara_mjx.train import _command_start
+
+    with open(log, "w") as f:
+        t0 = time.monotonic()
+        proc = subprocess.Popen(argv, env=env, stdout=f, stderr=subprocess.STDOUT)
+        offset = _command_start(proc.pid) - t0 if os.path.exists(f"/proc/{proc.pid}") else None
+        try:
+            code = proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            code = None
+        finally:  # timed out, or this process interrupted: no training left behind
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        command_s = time.monotonic() - t0
+    if code != 0:
+        why = f"exit status {code}" if code is not None else f"killed after {timeout_s} s"
+        tail = log.read_text()[-3000:]
+        raise RuntimeError(f"{shlex.join(argv)}: {why}; its output ends:\n{tail}")
+    return {"launch_offset_s": offset, "command_s": command_s}
+
+
+def read_run(run_dir: Path, offset: float | None) -> dict[str, Any]:
+    """What a finished run folder says, with the CLI's times moved to the launch clock."""
+    shift = offset or 0.0
+    progress = logger.read_progress(run_dir, ("env_steps", "time_s", "steps_per_s"))
+    summary = json.loads((run_dir / "summary.json").read_text())
+    t, sps = progress["time_s"], progress["steps_per_s"]
+    later = sps[(t > t[0]) & np.isfinite(sps)]
+    det = progress.get("det_error_mm", np.array([math.nan]))[-1]
+    out: dict[str, Any] = {
+        "env_steps": int(progress["env_steps"][-1]),
+        "first_call_s": float(t[0]) + shift,
+        "env_steps_per_s": float(np.median(later)) if later.size else None,
+        "final_det_error_mm": float(det),
+        "cli_command_time_s": summary["command_time_s"] + shift,
+        "state_hash": state_hash(run_dir),
+    }
+    for mm in THRESHOLDS_MM:
+        hit = summary["time_to_accuracy"].get(f"{mm:g}mm")
+        out[f"to_{mm:g}mm_s"] = hit["time_s"] + shift if hit else None
+        out[f"to_{mm:g}mm_env_steps"] = hit["env_steps"] if hit else None
+    return out
+
+
+def state_hash(run_dir: Path) -> str | None:
+    """sha256 (16 hex digits) of every array of the newest checkpoint: names, dtypes,
+    shapes and bytes; the JSON metadata left out. None without a checkpoint."""
+    found = ckpt.list_checkpoints(run_dir)
+    if not found:
+        return None
+    arrays, _ = ckpt.load_checkpoint(found[-1])
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}:{a.dtype.str}:{a.shape};".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()[:16]
+
+
+def run_train(
+    config: TTAConfig, work: Path, name: str, argv_args: dict[str, Any], xla_ops: str | None
+) -> dict[str, Any]:
+    """One train command, its record."""
+    out = work / "runs" / name
+    argv = train_argv(config, out=out, **argv_args)
+    env = child_env(xla_ops)
+    timing = launch(argv, env, work / f"{name}.log", config.timeout_s)
+    prefix = f"XLA_FLAGS={shlex.quote(env['XLA_FLAGS'])} " if xla_ops is not None else ""
+    return {
+        "kind": "run",
+        "task": config.tasks[0],
+        "seed": argv_args["seed"],
+        "command": prefix + "python " + shlex.join(argv[1:]),
+        "xla_flags_given": env.get("XLA_FLAGS", ""),
+        **timing,
+        **read_run(out, timing["launch_offset_s"]),
+    }
+
+
+# ------------------------------------------------------------------------ parts
+def tta_part(config: TTAConfig, work: Path) -> list[dict[str, Any]]:
+    records = []
+    for seed in config.seeds:
+        cache = work / f"cache-seed{seed}"
+        cache.mkdir()
+        for phase in ("cold", "warm"):
+            args = {"seed": seed, "cache": str(cache)}
+            rec = run_train(config, work, f"tta-seed{seed}-{phase}", args, None)
+            rec = {**rec, "part": "tta", "cache": phase, "xla_ops": CLI_DEFAULT}
+            if phase == "warm":
+                rec["same_bits_as_cold"] = rec["state_hash"] == records[-1]["state_hash"]
+            records.append(rec)
+            _print(rec)
+    for phase in ("cold", "warm"):
+        records.append(median_record([r for r in records if r["cache"] == phase], phase))
+    return records
+
+
+def median_record(runs: list[dict[str, Any]], phase: str) -> dict[str, Any]:
+    """The median over seeds of each number (module docstring for unreached thresholds)."""
+    rec: dict[str, Any] = {"kind": "median", "part": "tta", "cache": phase}
+    rec.update({"xla_ops": CLI_DEFAULT, "seeds": [r["seed"] for r in runs]})
+    for key in ("command_s", "cli_command_time_s", "first_call_s", "env_steps_per_s"):
+        values = [r[key] for r in runs if r[key] is not None]
+        rec[key] = statistics.median(values) if values else None
+    for mm in THRESHOLDS_MM:
+        for key in (f"to_{mm:g}mm_s", f"to_{mm:g}mm_env_steps"):
+            m = statistics.median([math.inf if r[key] is None else r[key] for r in runs])
+            rec[key] = m if math.isfinite(m) else None
+        rec[f"reached_{mm:g}mm"] = sum(r[f"to_{mm:g}mm_s"] is not None for r in runs)
+    return rec
+
+
+def xla_ops_part(config: TTAConfig, work: Path) -> list[dict[str, Any]]:
+    records = []
+    for mode, value in XLA_OPS.items():
+        args = {"seed": config.seeds[0], "cache": "false", "total": config.xla_ops_total_timesteps}
+        rec = run_train(config, work, f"xla_ops-{mode}", args, value)
+        records.append({**rec, "part": "xla_ops", "cache": "off", "xla_ops": mode})
+        _print(records[-1])
+    return records
+
+
+def limit_part(config: TTAConfig, ppo_env_steps_per_s: float | None) -> dict[str, Any]:
+    from mara_mjx.bench.limit import LimitConfig, limit_study
+
+    sizes = {"tasks": config.tasks, "drivers": ("train",), "sizes": (config.limit_num_envs,)}
+    quick = {k: v for k, v in LimitConfig.QUICK.items() if k != "sizes"} if config.quick else {}
+    (rec,) = limit_study(LimitConfig(**{**quick, **sizes}))
+    sps = ppo_env_steps_per_s
+    return {
+        "kind": "limit",
+        "part": "limit",
+        **rec,
+        "ppo_env_steps_per_s": sps,
+        "ppo_fraction_of_bound": sps / rec["bound_env_steps_per_s"] if sps else None,
+    }
+
+
+def tta_study(config: TTAConfig) -> list[dict[str, Any]]:
+    """The parts of the module docstring, in order; the limit part last."""
+    if config.work_dir:
+        Path(config.work_dir).mkdir(parents=True, exist_ok=True)
+    folder = tempfile.mkdtemp(prefix="tta-", dir=config.work_dir or None)
+    records: list[dict[str, Any]] = []
+    try:
+        if "tta" in config.parts:
+            records += tta_part(config, Path(folder))
+        if "xla_ops" in config.parts:
+            records += xla_ops_part(config, Path(folder))
+        if "limit" in config.parts:
+            warm = [r for r in records if r["kind"] == "median" and r["cache"] == "warm"]
+            records.append(limit_part(config, warm[0]["env_steps_per_s"] if warm else None))
+    finally:
+        if not config.work_dir:
+            import shutil
+
+            shutil.rmtree(folder, ignore_errors=True)
+    if config.work_dir:
+        print(f"run folders, caches and logs kept in {folder}")
+    return records
+
+
+def _print(r: dict[str, Any]) -> None:
+    print(
+        f"{r['part']:7s} seed {r['seed']} {r['cache']:4s} {r['xla_ops']:17s}"
+        f" 5 mm at {_secs(r['to_5mm_s'])}, 1 mm at {_secs(r['to_1mm_s'])},"
+        f" command {r['command_s']:.1f} s, {_mega(r['env_steps_per_s'])} env steps/s,"
+        f" state {r['state_hash']}",
+        flush=True,
+    )
+
+
+# ------------------------------------------------------------------ output spec
+def _cell(x: float | None, digits: int = 1) -> str:
+    return "" if x is None else f"{x:.{digits}f}"
+
+
+def _mega(x: float | None) -> str:
+    return "" if x is None else f"{x / 1e6:.3g} M"
+
+
+def _secs(x: float | None) -> str:
+    return "not reached" if x is None else f"{x:.1f} s"
+
+
+def _int(x: int | None) -> str:
+    return "" if x is None else f"{x:,}"
+
+
+def _notes(records: list[dict[str, Any]]) -> list[str]:
+    lines = [
+        "Times in seconds from command start (this process launching `python -m "
+        "mara_mjx.train`; the CLI's own clock starts with its process, the offset is in "
+        "the JSON), compile and start-up included; granularity one jitted call. env "
+        "steps/s: median of the progress rows after the first (compiling) call. Full "
+        "commands in the JSON (`command`)."
+    ]
+    medians = {r["cache"]: r for r in records if r["kind"] == "median"}
+    if medians:
+        parts = [
+            f"{phase} 5 mm at {_secs(m['to_5mm_s'])}, 1 mm at {_secs(m['to_1mm_s'])}, "
+            f"whole command {_secs(m['command_s'])}"
+            for phase, m in medians.items()
+        ]
+        seeds = ", ".join(str(s) for s in medians["cold"]["seeds"])
+        lines += ["", f"Median of seeds {seeds}: " + "; ".join(parts) + "."]
+        same = [r["same_bits_as_cold"] for r in records if "same_bits_as_cold" in r]
+        lines += [f"Warm runs bit-identical to their cold run: {sum(same)} of {len(same)}."]
+    rates = {r["xla_ops"]: r["env_steps_per_s"] for r in records if r["part"] == "xla_ops"}
+    if "warm" in medians:
+        rates[CLI_DEFAULT] = medians["warm"]["env_steps_per_s"]
+    if rates:
+        text = ", ".join(f"{k} {_mega(v)}" for k, v in rates.items())
+        lines += [
+            "",
+            f"PPO env steps/s by XLA's GPU ops: {text} (the CLI default: warm median of the "
+            "tta runs; `--xla_gpu_deterministic_ops` only acts on GPUs).",
+        ]
+    for r in (r for r in records if r["kind"] == "limit"):
+        ppo = r["ppo_fraction_of_bound"]
+        lines += [
+            "",
+            f"Roofline (`limit` study, {r['task']} train driver, {r['num_envs']:,} envs): one "
+            f"env step {r['flops_per_env_step']:,.0f} FLOP and {r['bytes_per_env_step']:,.0f} "
+            "bytes (XLA's cost analysis); ceilings measured here: float32 matmul "
+            f"{r['f32_matmul_flops_per_s'] / 1e12:.2f} TFLOP/s, memory "
+            f"{r['bytes_per_s'] / 1e9:.1f} GB/s; bound {_mega(r['bound_env_steps_per_s'])} "
+            f"env steps/s ({r['limited_by']}); the env step alone "
+            f"{_mega(r['env_steps_per_s'])} ({100 * r['fraction_of_bound']:.2f}% of it), "
+            f"the PPO {_mega(r['ppo_env_steps_per_s'])}"
+            + (f" ({100 * ppo:.2f}% of it)." if ppo else "."),
+        ]
+    return lines
+
+
+def plot_tta(records: list[dict[str, Any]], title: str, path: Any) -> None:
+    """Left: time to 5 mm, 1 mm and the whole command, cold and warm (bars: median over
+    seeds; dots: seeds). Right: PPO env steps/s by XLA's GPU-op choice."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4.5), width_ratios=(3, 2))
+    keys = (("to_5mm_s", "5 mm"), ("to_1mm_s", "1 mm"), ("command_s", "command"))
+    for j, phase in enumerate(("cold", "warm")):
+        m = next((r for r in records if r["kind"] == "median" and r["cache"] == phase), None)
+        runs = [r for r in records if r["kind"] == "run" and r["part"] == "tta"]
+        runs = [r for r in runs if r["cache"] == phase]
+        xs = [i + 0.38 * (j - 0.5) for i in range(len(keys))]
+        heights = [(m or {}).get(k) or 0.0 for k, _ in keys]
+        left.bar(xs, heights, width=0.36, color=f"C{j}", alpha=0.7, label=f"{phase} (median)")
+        for x, h, (k, _) in zip(xs, heights, keys, strict=True):
+            ys = [r[k] for r in runs if r[k] is not None]
+            left.plot([x] * len(ys), ys, "k.", markersize=5)
+            if m is not None and not h:
+                left.text(x, 0, "not\nreached", ha="center", va="bottom", fontsize=7)
+    left.set_xticks(range(len(keys)), [label for _, label in keys])
+    left.set_ylabel("seconds from command start")
+    left.set_title("time to accuracy (dots: seeds)")
+    left.grid(True, axis="y", alpha=0.3)
+    left.legend(fontsize=8)
+    rates = [(r["xla_ops"], r["env_steps_per_s"]) for r in records if r["part"] == "xla_ops"]
+    warm = [r for r in records if r["kind"] == "median" and r["cache"] == "warm"]
+    rates += [(CLI_DEFAULT, r["env_steps_per_s"]) for r in warm]
+    rates = [(k, v) for k, v in rates if v]
+    for i, (k, v) in enumerate(rates):
+        right.bar(i, v, color=f"C{i + 2}", label=k)
+    right.set_xticks(range(len(rates)), [k.replace(" ", "\n") for k, _ in rates], fontsize=7)
+    fig.suptitle(title)
+    finish_figure(fig, right, path, "PPO speed", "XLA GPU ops", "env steps / s")
+
+
+TTA_TABLE: dict[str, Any] = {
+    "title": "tta study: time to accuracy from command start (the train CLI as users run it)",
+    "columns": [
+        ("part", lambda r: r["part"] if r["kind"] == "run" else "median"),
+        ("seed", lambda r: str(r["seed"]) if "seed" in r else ",".join(map(str, r["seeds"]))),
+        ("cache", lambda r: r["cache"]),
+        ("XLA GPU ops", lambda r: r["xla_ops"]),
+        ("5 mm at (s)", lambda r: _cell(r["to_5mm_s"])),
+        ("1 mm at (s)", lambda r: _cell(r["to_1mm_s"])),
+        ("env steps to 1 mm", lambda r: _int(r["to_1mm_env_steps"])),
+        ("first call done (s)", lambda r: _cell(r["first_call_s"])),
+        ("command (s)", lambda r: _cell(r["command_s"])),
+        ("env steps/s", lambda r: _mega(r["env_steps_per_s"])),
+        ("final det error (mm)", lambda r: _cell(r.get("final_det_error_mm"), 3)),
+        ("state hash", lambda r: r.get("state_hash") or ""),
+    ],
+    "rows": lambda records: [r for r in records if r["kind"] in ("run", "median")],
+    "notes": _notes,
+    "plot": plot_tta,
+}
+
+
+STUDY = Study(
+    "tta", TTAConfig, tta_study, TTA_TABLE, "time to accuracy from command start, cold and warm"
+)
