@@ -365,3 +365,19 @@ def test_bad_input_gives_clear_error(args, message, capsys, compiled):
     assert stop.value.code == 2
     assert message in capsys.readouterr().err
     assert not compiled
+
+
+def test_every_study_parses_without_brax(monkeypatch):
+    """brax is optional: the benchmark CLI's parser (which builds every study's default
+    config) must not need it, so that `python -m mara_mjx.benchmark tta` runs without it."""
+    import importlib.util
+
+    from mara_mjx.bench import runner
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "brax" else real(name, *a)
+    )
+    monkeypatch.setitem(sys.modules, "brax", None)  # import brax -> ImportError
+    parser = runner.build_parser("test")
+    assert parser.parse_args(["tta", "--quick"]) is not None

@@ -52,6 +52,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import importlib.util
 import math
 import sys
 import time
@@ -489,7 +490,9 @@ class TrainStudyConfig(BenchConfig):
         if self.score_last > self.score_steps:
             raise ValueError("score_last must not exceed score_steps")
         config = ppo_config(self)  # PPOConfig's own validation, with its messages
-        if self.study == "brax":
+        # brax is optional: without it the brax study's settings are checked when it runs
+        # (and every other study's flags still build: the parser makes each default config)
+        if self.study == "brax" and importlib.util.find_spec("brax") is not None:
             brax_kwargs(config, self.episode_length)
 
 
