@@ -381,3 +381,18 @@ def test_every_study_parses_without_brax(monkeypatch):
     monkeypatch.setitem(sys.modules, "brax", None)  # import brax -> ImportError
     parser = runner.build_parser("test")
     assert parser.parse_args(["tta", "--quick"]) is not None
+
+
+def test_the_parser_starts_no_jax_backend():
+    """`runner.configure` sets XLA_FLAGS and the GPU memory preallocation before the
+    backend starts; the parser (every study's default config) must not start it first
+    (the tta study's train commands failed on a GPU when it did)."""
+    code = (
+        "from jax._src import xla_bridge as xb\n"
+        "from mara_mjx.bench import runner\n"
+        "runner.build_parser('x')\n"
+        "print('started' if xb._backends else 'not started')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "not started"

@@ -145,8 +145,13 @@ class TTAConfig(BenchConfig):
         check_train_args(self.train_args, self.tasks[0], self.preset)
 
 
-def check_train_args(text: str, task: str, preset: str) -> None:
-    """ValueError unless `text` is flags the train CLI accepts and the study does not set."""
+def check_train_args(text: str, task: str, preset: str, build_env: bool = False) -> None:
+    """ValueError unless `text` is flags the train CLI accepts and the study does not set;
+    with `build_env`, also unless the env they describe builds. Building an env starts
+    JAX's backend, so the config's own check leaves it to `tta_study`: the benchmark
+    parser makes every study's default config before `runner.configure` sets up the
+    backend (and without that, this process would preallocate the GPU memory that the
+    train commands it launches need: they then fail to compile)."""
     import mara_mjx
     from mara_mjx import train as train_cli
     from mara_mjx.cli import UserError
@@ -169,6 +174,8 @@ def check_train_args(text: str, task: str, preset: str) -> None:
         plan = train_cli.resolve(parser.parse_args(argv))
     except UserError as e:
         raise ValueError(f"train_args: {e}") from e
+    if not build_env:
+        return
     try:  # as the CLI builds it (cheap: nothing compiles)
         mara_mjx.make(plan.env_name, **plan.env_overrides)
     except ValueError as e:
@@ -346,6 +353,7 @@ def limit_part(config: TTAConfig, ppo_env_steps_per_s: float | None) -> dict[str
 
 def tta_study(config: TTAConfig) -> list[dict[str, Any]]:
     """The parts of the module docstring, in order; the limit part last."""
+    check_train_args(config.train_args, config.tasks[0], config.preset, build_env=True)
     if config.work_dir:
         Path(config.work_dir).mkdir(parents=True, exist_ok=True)
     folder = tempfile.mkdtemp(prefix="tta-", dir=config.work_dir or None)
