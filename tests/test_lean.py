@@ -95,4 +95,6 @@ def test_a_task_with_lean_kinematics_steps_like_mjx():
 def test_lean_kinematics_config_errors():
     with pytest.raises(ValueError, match="kinematics='cuda' is not valid; choose one of"):
         mara_mjx.make("MARA", kinematics="cuda")
-    assert mara_mjx.make("MARA", driver="real").kinematics == "mjx"  # lean: train driver
+    # the real driver's collision checks use the pass unless MJX solves the contacts
+    assert mara_mjx.make("MARA", driver="real").kinematics == "lean"
+    assert mara_mjx.make("MARA", driver="real", real_contacts="physical").kinematics == "mjx"

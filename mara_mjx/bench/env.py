@@ -79,11 +79,18 @@ def make_rollout(benv: BatchedEnv, steps: int):
 
 
 def time_env(
-    task: str, driver: str, num_envs: int, steps: int, repeats: int, devices: int | None = None
+    task: str,
+    driver: str,
+    num_envs: int,
+    steps: int,
+    repeats: int,
+    devices: int | None = None,
+    **overrides: Any,
 ) -> dict[str, Any]:
     """Compile time and steady-state env steps/s of one (task, driver, num_envs), the
-    envs spread over `devices` (None: all, BatchedEnv's default)."""
-    env = mara_mjx.make(task, driver=driver)
+    envs spread over `devices` (None: all, BatchedEnv's default); `overrides`: further
+    EnvConfig fields (e.g. real_contacts)."""
+    env = mara_mjx.make(task, driver=driver, **overrides)
     benv = BatchedEnv(env, num_envs, devices=devices)
     rollout = make_rollout(benv, steps)
     state = jax.jit(benv.reset)(jax.random.key(0))

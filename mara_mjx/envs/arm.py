@@ -15,13 +15,31 @@ Drivers (spec section 5):
   * `real`: each joint's servo reference moves toward the command at
     `velocity` rad/s; `mjx.step` integrates the arm's dynamics under servos
     kp (ref - q) + kv (ref_vel - qdot) (torque-limited to the effort limits,
-    gravity fed forward) for control_dt / timestep substeps. Contacts act
-    physically.
+    gravity fed forward) for control_dt / timestep substeps. The step has
+    collided if any substep starts in penetration or the final pose penetrates.
+    How contacts enter (`contacts`, EnvConfig.real_contacts):
+      - 'detect' (the default): contacts are detected, not solved. The dynamics
+        run on a copy of the model with MuJoCo's contact flag off
+        (mjDSBL_CONTACT: MJX then allocates no contacts and no contact rows, so
+        its constraint solver sees only the joint limits, and the randomised
+        friction loss); every substep's start pose and the final pose go
+        through the pose pass (`kinematics`: lean or MJX collision) in one
+        vectorised call after the substeps.
+      - 'physical': MJX solves the contact forces at every substep (the spec's
+        section 5), and the penetration is read from its own contacts.
+    Every task puts the arm back at the reset pose at the end of a step that
+    collided, so the two agree wherever it matters: up to a step's first
+    penetrating substep the contact rows are inactive and the dynamics are the
+    same, so the trajectories, the collided flags and the resets are the same
+    (tests/test_real_fast.py). Only a colliding step's own observation and
+    reward differ: they are those of its final pose, which under 'detect' the
+    arm reaches without being pushed back by the contact.
 """
 
 from __future__ import annotations
 
 import contextlib
+import copy
 import functools
 import importlib.resources
 import io
@@ -120,6 +138,16 @@ class Arm:
         self.mjx_model = mjx.put_model(m, impl="jax", device=device)
         self._data0 = mjx.make_data(m, impl="jax", device=device)
         self.num_contacts = int(self._data0._impl.contact.dist.shape[0])
+        # The 'detect' driver's dynamics: the same model with contacts disabled.
+        free = copy.deepcopy(m)
+        free.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
+        self._dynamics = {
+            "physical": (self.mjx_model, self._data0),
+            "detect": (
+                mjx.put_model(free, impl="jax", device=device),
+                mjx.make_data(free, impl="jax", device=device),
+            ),
+        }
 
     # ------------------------------------------------------------------ poses
     def _pose(self, d: mjx.Data, collided: jax.Array) -> ArmPose:
@@ -163,6 +191,11 @@ class Arm:
         qvel = (command - q) / control_dt
         return command, qvel, self.pose_with(command, kinematics)
 
+    def dynamics_model(self, contacts: str) -> mjx.Model:
+        """The MJX model the real driver integrates: contacts 'physical' (the full model)
+        or 'detect' (contacts disabled). A randomised env edits a copy of it per env."""
+        return self._dynamics[contacts][0]
+
     def real_step(
         self,
         q: jax.Array,
@@ -172,14 +205,20 @@ class Arm:
         velocity: jax.Array,
         n_substeps: int,
         model: mjx.Model | None = None,
+        contacts: str = "physical",
+        kinematics: str = "mjx",
     ) -> tuple[jax.Array, jax.Array, jax.Array, ArmPose]:
         """Servo toward `command` for n_substeps physics steps. Returns q', qvel', ref', pose.
 
         The pose's `collided` is true if any substep started in penetration or the final
-        pose penetrates. `model`: the dynamics model (None: the nominal one; a randomised
-        env passes its per-env masses, damping, gains, ...).
+        pose penetrates. `model`: the dynamics model (None: `dynamics_model(contacts)`; a
+        randomised env passes its per-env masses, damping, gains, ... on that model).
+        `contacts`: 'physical' or 'detect' (the module docstring); `kinematics`: the pose
+        pass of 'detect' ('mjx' or 'lean', as `pose_with`).
         """
-        model = self.mjx_model if model is None else model
+        physical = contacts == "physical"
+        template = self._dynamics[contacts][1]
+        model = self.dynamics_model(contacts) if model is None else model
         max_move = velocity * self.timestep
 
         def substep(carry, _):
@@ -187,16 +226,24 @@ class Arm:
             move = jnp.clip(command - ref, -max_move, max_move)
             ref = ref + move
             ctrl = jnp.concatenate([ref, move / self.timestep])  # [ref, ref_vel]
+            start = d.qpos
             d = mjx.step(model, d.replace(ctrl=ctrl))
-            hit = hit | self._penetrating(d)
-            return (d, ref, hit), None
+            if physical:  # the contacts of this substep's start pose
+                hit = hit | self._penetrating(d)
+            return (d, ref, hit), start
 
-        d = self._data0.replace(qpos=q, qvel=qvel)
+        d = template.replace(qpos=q, qvel=qvel)
         with jax.named_scope("dynamics"):
-            (d, ref, hit), _ = jax.lax.scan(
+            (d, ref, hit), starts = jax.lax.scan(
                 substep, (d, ref, jnp.array(False)), None, length=n_substeps
             )
-        pose = self.pose(d.qpos)
+        if physical:
+            pose = self.pose(d.qpos)
+        else:
+            with jax.named_scope("substep_collision"):
+                poses = jnp.concatenate([starts, d.qpos[None]])
+                hit = jnp.any(jax.vmap(lambda x: self.pose_with(x, kinematics).collided)(poses))
+            pose = self.pose_with(d.qpos, kinematics, collide=False)
         return d.qpos, d.qvel, ref, pose._replace(collided=pose.collided | hit)
 
     # ------------------------------------------------------------ rendering

@@ -83,6 +83,7 @@ class Env(Protocol):
 
 DRIVERS = ("train", "real")
 KINEMATICS = ("mjx", "lean")
+REAL_CONTACTS = ("detect", "physical")
 DEFAULT_TARGET_POS = (-0.40028, 0.095615, 0.72466)
 DEFAULT_TARGET_QUAT = (0.0, 0.7071068, 0.7071068, 0.0)
 # Random-target tasks (envs/random_target.py): the default working volume, 30 x 50 x 20 cm
@@ -127,8 +128,20 @@ class EnvConfig:
     plain jnp (mara_mjx/envs/lean.py; TCP pose within 1e-6 m of MJX's, collision flags
     as C MuJoCo's beyond float32 precision of contact, where MJX's capsule-box test
     differs; 1.4x the env steps/s and a faster compile: benchmarks/NOTES.md section 17).
-    'mjx': `mjx.kinematics` + `mjx.collision`, the reference. The real driver steps MJX
-    whatever this says."""
+    'mjx': `mjx.kinematics` + `mjx.collision`, the reference. The real driver's
+    dynamics are MJX's whatever this says; with real_contacts='detect' its pose and
+    collision checks use this pass, with 'physical' MJX's."""
+    real_contacts: Literal["detect", "physical"] = "detect"
+    """Real driver: how contacts enter the dynamics. 'detect' (the default): detected,
+    not solved. The dynamics run with MuJoCo's contact flag off (joint limits, and the
+    randomised friction loss, still act), and every physics substep's start pose and
+    the final pose are checked for penetration by the `kinematics` pass. A collision
+    puts the arm back at the reset pose in every task, so the trajectories, collided
+    flags and resets are those of 'physical' (tests/test_real_fast.py); only a
+    colliding step's own observation and reward differ (the final pose, reached without
+    the contact pushing back). 'physical': MJX solves the contact forces at every
+    substep (the spec's section 5), several times slower (benchmarks/real_driver_speed.py).
+    Ignored by the train driver."""
     max_episode_steps: int = 1024
     """Horizon: the episode truncates after this many steps."""
     control_dt: float = 0.05
@@ -178,6 +191,11 @@ class EnvConfig:
         if self.kinematics not in KINEMATICS:
             raise ValueError(
                 f"kinematics={self.kinematics!r} is not valid; choose one of {KINEMATICS}"
+            )
+        if self.real_contacts not in REAL_CONTACTS:
+            raise ValueError(
+                f"real_contacts={self.real_contacts!r} is not valid; choose one of "
+                f"{REAL_CONTACTS}"
             )
         if not isinstance(self.max_episode_steps, int) or isinstance(self.max_episode_steps, bool):
             raise ValueError(

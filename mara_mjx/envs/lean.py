@@ -14,11 +14,13 @@ step (benchmarks/NOTES.md section 1). Here it is what the bit needs:
   - capsule-capsule: the closest points of the two segments (Ericson, "Real-Time
     Collision Detection", 5.1.9), distance minus both radii;
   - capsule-box: in the box's frame the squared distance of a point p(t) = a + t (b - a)
-    of the segment to the box is f(t) = sum_i max(0, |p_i(t)| - h_i)^2, convex and
-    piecewise quadratic in t with breaks where p_i(t) = +-h_i. Its exact minimum over
-    [0, 1] is among the stationary points of the quadratic pieces between consecutive
-    breaks (6 breaks, 7 pieces, branch-free): distance = sqrt(min f) minus the radius,
-    and -radius when the segment enters the box (f = 0).
+    of the segment to the box is f(t) = sum_i max(0, |p_i(t)| - h_i)^2, convex,
+    continuously differentiable and piecewise quadratic in t with breaks where
+    p_i(t) = +-h_i. So f' is nondecreasing and linear between breaks: the largest knot
+    (breaks, 0 and 1) where f' <= 0 and the smallest where f' >= 0 bound one piece, and
+    f' = 0 at the linear interpolation between them, the exact minimiser over [0, 1]
+    (branch-free, no sort): distance = sqrt(min f) minus the radius, and -radius when
+    the segment enters the box (f = 0).
 * collided = any distance < 0, as `Arm.pose` (any MJX contact with dist < 0).
 
 Exact distances rather than MJX's contact manifolds, so near contact the bit can differ
@@ -192,26 +194,21 @@ def segment_segment_distance(p1, q1, p2, q2) -> jax.Array:
 
 def segment_box_distance(a, b, half) -> jax.Array:
     """Distance (m) from segment [a, b] to the box |x_i| <= half_i (all in the box's
-    frame); 0 when they intersect. Exact: the minimum of the convex piecewise quadratic
-    f(t) = sum_i max(0, |a_i + t d_i| - h_i)^2 over its pieces."""
+    frame); 0 when they intersect. Exact: f(t) = sum_i max(0, |a_i + t d_i| - h_i)^2 is
+    minimised where its nondecreasing, piecewise linear slope crosses 0."""
     d = b - a
     safe = jnp.where(jnp.abs(d) > 1e-12, d, 1e-12)
     breaks = jnp.concatenate([(half - a) / safe, (-half - a) / safe])
-    knots = jnp.sort(jnp.clip(jnp.concatenate([jnp.array([0.0, 1.0]), breaks]), 0.0, 1.0))
-    lo, hi = knots[:-1], knots[1:]
-    mid = 0.5 * (lo + hi)
-
-    def f(t):
-        p = a + t[..., None] * d
-        return jnp.sum(jnp.square(jnp.maximum(jnp.abs(p) - half, 0.0)), axis=-1)
-
-    # On each piece the active terms are those outside the slab at its midpoint.
-    p_mid = a + mid[:, None] * d
-    sign = jnp.where(p_mid > half, 1.0, jnp.where(p_mid < -half, -1.0, 0.0))
-    active = jnp.abs(sign)
-    quad = jnp.sum(active * d * d, axis=-1)
-    lin = jnp.sum(active * d * (a - sign * half), axis=-1)
-    t_star = jnp.where(quad > 1e-20, -lin / jnp.maximum(quad, 1e-20), lo)
-    t_star = jnp.clip(t_star, lo, hi)
-    candidates = jnp.concatenate([t_star, knots])
-    return jnp.sqrt(jnp.min(f(candidates)))
+    knots = jnp.clip(jnp.concatenate([jnp.array([0.0, 1.0]), breaks]), 0.0, 1.0)
+    p = a + knots[:, None] * d
+    slope = jnp.sum(jnp.maximum(jnp.abs(p) - half, 0.0) * jnp.sign(p) * d, axis=-1)  # f'/2
+    down, up = slope <= 0.0, slope >= 0.0
+    # f' <= 0 up to lo and >= 0 from hi on, and no knot lies strictly between them
+    lo, hi = jnp.max(jnp.where(down, knots, 0.0)), jnp.min(jnp.where(up, knots, 1.0))
+    slope_lo = jnp.max(jnp.where(down, slope, -jnp.inf))
+    slope_hi = jnp.min(jnp.where(up, slope, jnp.inf))
+    crossing = (hi > lo) & (slope_hi > slope_lo)
+    rise = jnp.where(crossing, slope_hi - slope_lo, 1.0)
+    t = jnp.where(crossing, lo - slope_lo * (hi - lo) / rise, lo)
+    p = a + jnp.clip(t, lo, hi) * d
+    return jnp.sqrt(jnp.sum(jnp.square(jnp.maximum(jnp.abs(p) - half, 0.0))))

@@ -82,13 +82,13 @@ def _shared_arm(frictionloss: bool = False) -> Arm:
 
     `frictionloss`: a model whose joints have MJX friction-loss constraint rows (MJX
     allocates them only for joints with a friction loss > 0 in the C model), so that the
-    randomised real driver can set per-env friction; its nominal friction is 1e-9 N m,
-    replaced by every draw."""
+    randomised real driver can set per-env friction; its nominal friction is
+    `randomize.MIN_FRICTIONLOSS`, replaced by every draw."""
     if frictionloss not in _ARMS:
         mj_model = None
         if frictionloss:
             mj_model = load_model()
-            mj_model.dof_frictionloss[:] = 1e-9
+            mj_model.dof_frictionloss[:] = rnd.MIN_FRICTIONLOSS
         _ARMS[frictionloss] = Arm(mj_model)
     return _ARMS[frictionloss]
 
@@ -103,8 +103,10 @@ class MaraEnv:
         self.task = task
         self.config = config if config is not None else default_config(task)
         cfg = self.config
-        # the lean pass is the train driver's; the real driver's poses come from MJX
-        self.kinematics = cfg.kinematics if cfg.driver == "train" else "mjx"
+        # the pose pass (lean or MJX); the real driver with physical contacts reads
+        # its collisions from MJX's own contacts, so its poses come from MJX too
+        physical = cfg.driver == "real" and cfg.real_contacts == "physical"
+        self.kinematics = "mjx" if physical else cfg.kinematics
         self.arm = _shared_arm(frictionloss=cfg.randomize and cfg.driver == "real")
         # None: no randomisation, every step exactly the nominal env's
         self.randomizer = rnd.Randomizer(self.arm, cfg.randomization) if cfg.randomize else None
@@ -264,14 +266,24 @@ class MaraEnv:
                 command = jnp.clip(command, self.arm.lower, self.arm.upper) - offset
                 command = jnp.clip(command, self.arm.lower, self.arm.upper)
                 if cfg.driver == "real":
-                    model = randomizer.model(self.arm.mjx_model, params.randomization)
+                    model = randomizer.model(
+                        self.arm.dynamics_model(cfg.real_contacts), params.randomization
+                    )
 
         if cfg.driver == "train":
             q, qvel, pose = self.arm.train_step(state.q, command, cfg.control_dt, self.kinematics)
             ref = command
         else:
             q, qvel, ref, pose = self.arm.real_step(
-                state.q, state.qvel, state.ref, command, params.velocity, self.n_substeps, model
+                state.q,
+                state.qvel,
+                state.ref,
+                command,
+                params.velocity,
+                self.n_substeps,
+                model,
+                contacts=cfg.real_contacts,
+                kinematics=self.kinematics,
             )
 
         key = state.key

@@ -54,6 +54,12 @@ from mara_mjx.config import ConfigMixin
 
 # The largest latency the action buffer may be built for (control steps, 50 ms each).
 MAX_LATENCY_STEPS = 16
+# The smallest friction loss (N m) the randomised model gets. MJX has a friction row for
+# every joint of a model built with friction (envs/mara.py), and treats a row whose
+# friction loss is exactly 0 as a stiff velocity constraint (its solver's linear zones
+# require friction > 0; C MuJoCo has no row then): a draw of 0, e.g. RandomizeConfig.off(),
+# would lock the joints. 1e-9 N m is dry friction of no consequence.
+MIN_FRICTIONLOSS = 1e-9
 
 
 @dataclasses.dataclass(frozen=True)
@@ -276,7 +282,9 @@ class Randomizer:
             # the gravity feed-forward keeps the nominal weights (see the module docstring)
             body_gravcomp=mjx_model.body_gravcomp.at[links].set(self.gravcomp0 / d["mass_scale"]),
             dof_damping=mjx_model.dof_damping.at[dofs].set(d["damping"]),
-            dof_frictionloss=mjx_model.dof_frictionloss.at[dofs].set(d["frictionloss"]),
+            dof_frictionloss=mjx_model.dof_frictionloss.at[dofs].set(
+                jnp.maximum(d["frictionloss"], MIN_FRICTIONLOSS)
+            ),
             dof_armature=mjx_model.dof_armature.at[dofs].set(self.armature0 * d["armature_scale"]),
             actuator_gainprm=gain,
             actuator_biasprm=bias,
