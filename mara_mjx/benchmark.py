@@ -18,10 +18,11 @@ Studies:
         the controls the real driver would send: per env step uniform random joint
         targets, the servo reference moving toward them at `velocity` rad/s,
         ctrl = [ref, ref_vel] (built in numpy beforehand, not timed). MJX side: the
-        `env` study's timing of `BatchedEnv.step` with the real driver (MARA task)
-        for the same N and steps, which does the same 10 mjx.step substeps plus
-        what C rollout does not: the final kinematics + collision for the pose,
-        observation, reward, penetration checks and auto-reset. So the ratio
+        `env` study's timing of `BatchedEnv.step` with the real driver solving
+        contacts as C does (MARA task, real_contacts='physical'; the default only
+        detects them) for the same N and steps, which does the same 10 mjx.step
+        substeps plus what C rollout does not: the final kinematics + collision for
+        the pose, observation, reward, penetration checks and auto-reset. So the ratio
         MJX / C slightly favours C. Reported: env steps/s and physics steps/s (env
         steps x 10) of both, and MJX / C (env steps/s ratio) on the MJX row.
         `--skip_mjx` times the C sides only (the MJX real-driver compile takes about

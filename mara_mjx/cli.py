@@ -148,11 +148,12 @@ def configure_jax(
       XLA's autotuner picked at compile time. So `--xla_gpu_autotune_level=0` (the same
       kernels in every compile) makes runs reproducible at 96% of the fastest speed,
       where `--xla_gpu_deterministic_ops=true` costs half of it (it also serialises
-      scatters XLA cannot prove free of races: MJX kinematics'). The real driver's
-      dynamics (`mjx.step`) do sum floats with scatter-adds, which GPUs run with atomics:
-      with `real_driver` (the callers' worst case when the driver is not known yet),
-      `--xla_gpu_deterministic_ops=true` is added as before. Nothing is added when
-      XLA_FLAGS already names either flag.
+      scatters XLA cannot prove free of races: MJX kinematics'). MJX's dynamics
+      (`mjx.step`, which a real-driver run may use: real_contacts='physical' or
+      kinematics='mjx'; the default plain-jnp dynamics have none) do sum floats with
+      scatter-adds, which GPUs run with atomics: with `real_driver` (the callers' worst
+      case when the driver is not known yet), `--xla_gpu_deterministic_ops=true` is added
+      as before. Nothing is added when XLA_FLAGS already names either flag.
     * JAX's persistent compilation cache, on unless `compilation_cache` (the
       `--compilation_cache` flag; None: not given) or MARA_MJX_COMPILATION_CACHE turns it
       off (`mara_mjx.jax_cache`). Returns the cache folder in use, or None.

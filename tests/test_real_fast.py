@@ -1,6 +1,7 @@
-"""The real driver's contacts detected ('detect', the default) against contacts solved
-('physical'): same trajectories while nothing penetrates, collisions flagged at the same
-step, the randomised driver, and the option's errors.
+"""The real driver's contacts detected ('detect', the default: with the lean dynamics and
+pose pass) against contacts solved ('physical', MJX): same trajectories while nothing
+penetrates, collisions flagged at the same step, 'detect' through MJX, the randomised
+driver, and the option's errors. (The lean dynamics alone: tests/test_dynamics.py.)
 
 One compiled rollout per env: `STEPS` control steps of `N` arms from given start poses
 toward given commands (one arm per scenario), so every test reuses the same programs.
@@ -23,10 +24,7 @@ SCENARIOS = {
     "free": (np.zeros(6), np.array([0.5, -0.4, 0.6, -0.5, 0.4, -0.6])),
     # motor1, motor4 and motor6 run into their joint limits at full speed (the servos
     # overshoot the limit by ~0.01 rad: the limit constraint acts)
-    "limits": (
-        np.array([3.0, 0.2, 0.0, 3.0, 0.0, -3.0]),
-        np.array([4.0, 0.2, 0.0, 4.0, 0.0, -4.0]),
-    ),
+    "limits": (np.array([3.0, 0.2, 0.0, 3.0, 0.0, -3.0]), np.array([4.0, 0.2, 0, 4.0, 0, -4.0])),
     # motor2 folds the arm down onto the table (contact near motor2 = 1.93 rad)
     "table": (np.array([0.0, 1.6, 0.0, 0.0, 0.0, 0.0]), np.array([0.0, 2.2, 0.0, 0.0, 0.0, 0.0])),
     # the gripper folds back into the arm (a capsule-capsule pair)
@@ -73,10 +71,8 @@ def rollouts():
         env = mara_mjx.make(
             "MARACollisionOrient", driver="real", velocity=VELOCITY, real_contacts=option
         )
-        out[option] = (
-            env,
-            jax.tree.map(np.asarray, make_rollout(env)(*inputs(), env.default_params)),
-        )
+        arrays = make_rollout(env)(*inputs(), env.default_params)
+        out[option] = env, jax.tree.map(np.asarray, arrays)
     return out
 
 
@@ -86,8 +82,8 @@ def test_detect_matches_physical_while_nothing_penetrates(rollouts):
     (_, detect), (_, physical) = rollouts["detect"], rollouts["physical"]
     free = rows(FREE)
     assert detect[4][:, free].sum() == 0 and physical[4][:, free].sum() == 0
-    # the same MJX dynamics (measured: q, qvel, ref bitwise equal on the CPU); the
-    # observation's pose from the lean pass, within float32 rounding of MJX's
+    # the lean dynamics and pose pass against MJX's: float32 rounding (measured on the
+    # CPU: q 6e-8 rad, qvel 2.4e-7 rad/s, obs 7e-7)
     for name, a, b, tol in zip(
         ("q", "qvel", "ref", "obs"), detect[:4], physical[:4], (1e-6, 1e-5, 1e-6, 1e-5), strict=True
     ):
@@ -115,10 +111,11 @@ def test_collisions_are_flagged_at_the_same_step(rollouts):
         assert np.all(detect[0][step, j] == 0) and np.all(detect[1][step, j] == 0)
 
 
-def test_the_detect_pass_can_be_mjx_collision(rollouts):
-    """kinematics='mjx': the detect driver's collision checks are MJX's own, the ones
-    'physical' reads from its contacts: the same flags and states at every step (the
-    driver alone, stepped as the env does, so only `real_step` compiles)."""
+def test_detect_through_mjx_is_physical_until_contact(rollouts):
+    """kinematics='mjx': 'detect' with `mjx.step` of the contact-free model and MJX's
+    collision checks, the ones 'physical' reads from its contacts: the same flags and
+    states at every step (the driver alone, stepped as the env does, so only
+    `real_step` compiles)."""
     env = mara_mjx.make("MARACollision", driver="real", kinematics="mjx", velocity=VELOCITY)
     assert env.kinematics == "mjx" and env.config.real_contacts == "detect"
     arm = env.arm
@@ -165,7 +162,6 @@ def test_randomised_real_driver_detects(rollouts):
 
 @pytest.mark.parametrize("value", ["solve", "", None, "Physical"])
 def test_bad_real_contacts_is_a_clear_error(value):
-    with pytest.raises(
-        ValueError, match=r"real_contacts=.* is not valid; choose one of \('detect', 'physical'\)"
-    ):
+    valid = r"real_contacts=.* is not valid; choose one of \('detect', 'physical'\)"
+    with pytest.raises(ValueError, match=valid):
         mara_mjx.make("MARA", driver="real", real_contacts=value)

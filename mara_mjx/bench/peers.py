@@ -9,8 +9,9 @@ thread, persistent thread pool) of N arms x `steps` env steps x 10 substeps of m
 loop, with the controls the real driver would send: per env step uniform random joint
 targets, the servo reference moving toward them at `velocity` rad/s, ctrl = [ref,
 ref_vel] (built in numpy beforehand, not timed). MJX side: the `env` study's timing of
-`BatchedEnv.step` with the real driver (MARA task) for the same N and steps, which does
-the same 10 mjx.step substeps plus what C rollout does not: the final kinematics +
+`BatchedEnv.step` with the real driver solving contacts as C does (MARA task,
+real_contacts='physical'; the default only detects them) for the same N and steps, which
+does the same 10 mjx.step substeps plus what C rollout does not: the final kinematics +
 collision for the pose, observation, reward, penetration checks and auto-reset. So the
 ratio MJX / C slightly favours C. Reported: env steps/s and physics steps/s (env steps x
 10) of both, and MJX / C (env steps/s ratio) on the MJX row. `skip_mjx` times the C
@@ -151,7 +152,8 @@ def peers_study(args: PeersConfig) -> list[dict[str, Any]]:
         records.append(c)
         line = f"n={n:>7d} {driver} driver: C {c['env_steps_per_s'] / 1e6:8.3f} M/s"
         if not args.skip_mjx:
-            mj = time_env(task, driver, n, args.steps, args.repeats)
+            solved = {"real_contacts": "physical"} if driver == "real" else {}
+            mj = time_env(task, driver, n, args.steps, args.repeats, **solved)
             ratio = mj["env_steps_per_s"] / c["env_steps_per_s"]
             impl = f"mjx {driver} driver (BatchedEnv.step)"
             records.append(

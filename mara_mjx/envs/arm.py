@@ -1,39 +1,42 @@
-"""The MARA arm on MJX: model loading, the TCP pose, collision, and the two drivers.
+"""The MARA arm: model loading, the TCP pose, collision, and the two drivers.
 
 Everything task-independent lives here; `mara.py` builds the tasks on top.
 
 Physics state is three (6,) arrays, not a whole `mjx.Data`: joint positions `q`
 (rad), velocities `qvel` (rad/s) and the servo references `ref` (rad, `real`
-driver only). Each step fills a constant `mjx.Data` template with them and runs
-only the MJX stages the driver needs, so the batched state that XLA carries from
-step to step is 18 floats per arm instead of every field of `mjx.Data`.
+driver only). A step through MJX fills a constant `mjx.Data` template with them
+and runs only the stages the driver needs, so the batched state that XLA carries
+from step to step is 18 floats per arm instead of every field of `mjx.Data`.
 
 Drivers (spec section 5):
   * `train`: the commanded joint positions are reached at once. q' = clip(a),
-    qvel' = (q' - q) / control_dt, then `mjx.kinematics` and `mjx.collision`.
-    No dynamics.
+    qvel' = (q' - q) / control_dt, then the pose pass (`kinematics`: the lean
+    pass of lean.py, or `mjx.kinematics` and `mjx.collision`). No dynamics.
   * `real`: each joint's servo reference moves toward the command at
-    `velocity` rad/s; `mjx.step` integrates the arm's dynamics under servos
-    kp (ref - q) + kv (ref_vel - qdot) (torque-limited to the effort limits,
-    gravity fed forward) for control_dt / timestep substeps. The step has
-    collided if any substep starts in penetration or the final pose penetrates.
-    How contacts enter (`contacts`, EnvConfig.real_contacts):
-      - 'detect' (the default): contacts are detected, not solved. The dynamics
-        run on a copy of the model with MuJoCo's contact flag off
-        (mjDSBL_CONTACT: MJX then allocates no contacts and no contact rows, so
-        its constraint solver sees only the joint limits, and the randomised
-        friction loss); every substep's start pose and the final pose go
-        through the pose pass (`kinematics`: lean or MJX collision) in one
+    `velocity` rad/s; the arm's dynamics under servos kp (ref - q) + kv (ref_vel
+    - qdot) (torque-limited to the effort limits, gravity fed forward) are
+    integrated for control_dt / timestep substeps. The step has collided if any
+    substep starts in penetration or the final pose penetrates. How contacts
+    enter (`contacts`, EnvConfig.real_contacts):
+      - 'detect' (the default): detected, not solved. The dynamics leave contacts
+        out (joint limits, and the randomised friction loss, still act): with
+        `kinematics` 'lean' the plain-jnp step of dynamics.py, with 'mjx'
+        `mjx.step` of a copy of the model with MuJoCo's contact flag off
+        (mjDSBL_CONTACT: MJX then has no contacts and no contact rows). Every
+        substep's start pose and the final pose go through the pose pass in one
         vectorised call after the substeps.
-      - 'physical': MJX solves the contact forces at every substep (the spec's
-        section 5), and the penetration is read from its own contacts.
-    Every task puts the arm back at the reset pose at the end of a step that
-    collided, so the two agree wherever it matters: up to a step's first
-    penetrating substep the contact rows are inactive and the dynamics are the
-    same, so the trajectories, the collided flags and the resets are the same
-    (tests/test_real_fast.py). Only a colliding step's own observation and
-    reward differ: they are those of its final pose, which under 'detect' the
-    arm reaches without being pushed back by the contact.
+      - 'physical': `mjx.step` solves the contact forces at every substep (the
+        spec's wording, "contacts act physically"); the penetration is read from
+        its own contacts.
+    Why 'detect' is the default: every task puts the arm back at the reset pose
+    at the end of a step that collided, and a contact row acts only once a pair
+    penetrates, so up to a step's first penetrating substep the dynamics are the
+    same (the lean step: to float rounding wherever MJX's 4-iteration constraint
+    solve has converged, dynamics.py) and so are the trajectories, the collided
+    flags and the resets (tests/test_real_fast.py). Only a colliding step's own
+    observation and reward differ: they are those of its final pose, which under
+    'detect' the arm reaches without being pushed back. And solving the contacts
+    is most of the cost (benchmarks/real_driver_speed.py).
 """
 
 from __future__ import annotations
@@ -56,6 +59,7 @@ import numpy as np
 with contextlib.redirect_stdout(io.StringIO()):
     from mujoco import mjx
 
+from mara_mjx.envs.dynamics import Dynamics
 from mara_mjx.envs.geometry import quat_canonical
 from mara_mjx.envs.lean import LeanArm
 from mara_mjx.envs.pose import ArmPose
@@ -184,6 +188,11 @@ class Arm:
         """The lean pose-and-collision pass of this model (mara_mjx.envs.lean)."""
         return LeanArm.from_model(self.mj_model)
 
+    @functools.cached_property
+    def dynamics(self) -> Dynamics:
+        """The lean physics step of this model (mara_mjx.envs.dynamics)."""
+        return Dynamics.from_model(self.mj_model)
+
     def train_step(
         self, q: jax.Array, command: jax.Array, control_dt: float, kinematics: str = "mjx"
     ) -> tuple[jax.Array, jax.Array, ArmPose]:
@@ -192,8 +201,9 @@ class Arm:
         return command, qvel, self.pose_with(command, kinematics)
 
     def dynamics_model(self, contacts: str) -> mjx.Model:
-        """The MJX model the real driver integrates: contacts 'physical' (the full model)
-        or 'detect' (contacts disabled). A randomised env edits a copy of it per env."""
+        """The MJX model of the real driver's dynamics: contacts 'physical' (the full
+        model) or 'detect' (contacts disabled; the lean step reads its fields too). A
+        randomised env edits a copy of it per env."""
         return self._dynamics[contacts][0]
 
     def real_step(
@@ -213,38 +223,44 @@ class Arm:
         The pose's `collided` is true if any substep started in penetration or the final
         pose penetrates. `model`: the dynamics model (None: `dynamics_model(contacts)`; a
         randomised env passes its per-env masses, damping, gains, ... on that model).
-        `contacts`: 'physical' or 'detect' (the module docstring); `kinematics`: the pose
-        pass of 'detect' ('mjx' or 'lean', as `pose_with`).
+        `contacts`: 'physical' or 'detect' (the module docstring); `kinematics`, with
+        'detect': 'lean' (the pose pass of `pose_with` and the step of dynamics.py, which
+        reads its masses, gains, ... from `model`) or 'mjx' (`pose` and `mjx.step`).
         """
         physical = contacts == "physical"
-        template = self._dynamics[contacts][1]
+        lean = not physical and kinematics == "lean"
         model = self.dynamics_model(contacts) if model is None else model
         max_move = velocity * self.timestep
 
         def substep(carry, _):
-            d, ref, hit = carry
+            physics, ref, hit = carry
             move = jnp.clip(command - ref, -max_move, max_move)
             ref = ref + move
             ctrl = jnp.concatenate([ref, move / self.timestep])  # [ref, ref_vel]
-            start = d.qpos
-            d = mjx.step(model, d.replace(ctrl=ctrl))
-            if physical:  # the contacts of this substep's start pose
-                hit = hit | self._penetrating(d)
-            return (d, ref, hit), start
+            if lean:
+                start = physics[0]
+                physics = self.dynamics.step(model, *physics, ctrl)
+            else:
+                start = physics.qpos
+                physics = mjx.step(model, physics.replace(ctrl=ctrl))
+                if physical:  # the contacts of this substep's start pose
+                    hit = hit | self._penetrating(physics)
+            return (physics, ref, hit), start
 
-        d = template.replace(qpos=q, qvel=qvel)
+        physics = (q, qvel) if lean else self._dynamics[contacts][1].replace(qpos=q, qvel=qvel)
         with jax.named_scope("dynamics"):
-            (d, ref, hit), starts = jax.lax.scan(
-                substep, (d, ref, jnp.array(False)), None, length=n_substeps
+            (physics, ref, hit), starts = jax.lax.scan(
+                substep, (physics, ref, jnp.array(False)), None, length=n_substeps
             )
+        q, qvel = physics if lean else (physics.qpos, physics.qvel)
         if physical:
-            pose = self.pose(d.qpos)
+            pose = self.pose(q)
         else:
             with jax.named_scope("substep_collision"):
-                poses = jnp.concatenate([starts, d.qpos[None]])
+                poses = jnp.concatenate([starts, q[None]])
                 hit = jnp.any(jax.vmap(lambda x: self.pose_with(x, kinematics).collided)(poses))
-            pose = self.pose_with(d.qpos, kinematics, collide=False)
-        return d.qpos, d.qvel, ref, pose._replace(collided=pose.collided | hit)
+            pose = self.pose_with(q, kinematics, collide=False)
+        return q, qvel, ref, pose._replace(collided=pose.collided | hit)
 
     # ------------------------------------------------------------ rendering
     def mj_data(self, q: np.ndarray, target_pos=None, target_quat=None) -> mujoco.MjData:

@@ -123,25 +123,28 @@ class EnvConfig:
     """'train': joints reach commands at once (kinematics + collision only, the paper's
     training driver). 'real': velocity-limited position servos and MJX dynamics."""
     kinematics: Literal["mjx", "lean"] = "lean"
-    """Train driver: how each step's pose and collision bit are computed. 'lean' (the
-    default): the chain's six transforms and the 24 pairs' exact signed distances in
-    plain jnp (mara_mjx/envs/lean.py; TCP pose within 1e-6 m of MJX's, collision flags
+    """Plain jnp or MJX for the arm's mechanics. 'lean' (the default): each pose and
+    collision bit from the chain's six transforms and the 24 pairs' exact signed
+    distances (mara_mjx/envs/lean.py; TCP pose within 1e-6 m of MJX's, collision flags
     as C MuJoCo's beyond float32 precision of contact, where MJX's capsule-box test
-    differs; 1.4x the env steps/s and a faster compile: benchmarks/NOTES.md section 17).
-    'mjx': `mjx.kinematics` + `mjx.collision`, the reference. The real driver's
-    dynamics are MJX's whatever this says; with real_contacts='detect' its pose and
-    collision checks use this pass, with 'physical' MJX's."""
+    differs; 1.4x the train driver's env steps/s and a faster compile:
+    benchmarks/NOTES.md section 17), and the real driver's dynamics with
+    real_contacts='detect' from mara_mjx/envs/dynamics.py (mjx.step's to float32
+    rounding, tests/test_dynamics.py; no while loop or scatter). 'mjx': `mjx.kinematics`
+    + `mjx.collision`, and `mjx.step`, the reference. With real_contacts='physical' the
+    real driver is MJX's whatever this says."""
     real_contacts: Literal["detect", "physical"] = "detect"
     """Real driver: how contacts enter the dynamics. 'detect' (the default): detected,
-    not solved. The dynamics run with MuJoCo's contact flag off (joint limits, and the
-    randomised friction loss, still act), and every physics substep's start pose and
-    the final pose are checked for penetration by the `kinematics` pass. A collision
-    puts the arm back at the reset pose in every task, so the trajectories, collided
-    flags and resets are those of 'physical' (tests/test_real_fast.py); only a
-    colliding step's own observation and reward differ (the final pose, reached without
-    the contact pushing back). 'physical': MJX solves the contact forces at every
-    substep (the spec's section 5), several times slower (benchmarks/real_driver_speed.py).
-    Ignored by the train driver."""
+    not solved. The dynamics leave contacts out (joint limits, and the randomised
+    friction loss, still act), and every physics substep's start pose and the final
+    pose are checked for penetration by the `kinematics` pass. A collision puts the arm
+    back at the reset pose in every task, and contact forces act only once a pair
+    penetrates, so the trajectories, collided flags and resets are those of 'physical'
+    (tests/test_real_fast.py); only a colliding step's own observation and reward
+    differ (its final pose, reached without the contact pushing back). 'physical':
+    MJX solves the contact forces at every substep, as the spec's section 5 words it,
+    several times slower (benchmarks/real_driver_speed.py). Ignored by the train
+    driver."""
     max_episode_steps: int = 1024
     """Horizon: the episode truncates after this many steps."""
     control_dt: float = 0.05
@@ -194,8 +197,7 @@ class EnvConfig:
             )
         if self.real_contacts not in REAL_CONTACTS:
             raise ValueError(
-                f"real_contacts={self.real_contacts!r} is not valid; choose one of "
-                f"{REAL_CONTACTS}"
+                f"real_contacts={self.real_contacts!r} is not valid; choose one of {REAL_CONTACTS}"
             )
         if not isinstance(self.max_episode_steps, int) or isinstance(self.max_episode_steps, bool):
             raise ValueError(
