@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import pickle
 import sys
 import time
 
@@ -92,7 +93,16 @@ def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
         real_fn = make_evaluate(real_env, ev_config, real_params)
     per_seed = []
     for i, s in enumerate(seeds):
-        policy = make_policy(take_seed(state, i), config)
+        seed_state = take_seed(state, i)
+        policy = make_policy(seed_state, config)
+        if args.save_params:  # for offline analysis: (params, obs_stats, config) per seed
+            name = "".join(c if c.isalnum() or c in "._-" else "_" for c in f"{task}_{variant}")
+            folder = os.path.join(args.save_params, name)
+            os.makedirs(folder, exist_ok=True)
+            with open(os.path.join(folder, f"seed{s}.pkl"), "wb") as f:
+                pickle.dump(
+                    jax.device_get((seed_state.params, seed_state.obs_stats, config.to_dict())), f
+                )
         res = evaluate(env, policy, ev_config, params, fn=fn)
         train = env.pose_table().pos
         gaps = np.linalg.norm(poses.pos[:, None, :] - train[None, :, :], axis=-1)
@@ -164,6 +174,11 @@ def main():
         help="also evaluate every policy on the real driver at this servo speed (rad/s)",
     )
     p.add_argument("--out", default="random_target_study.json")
+    p.add_argument(
+        "--save-params",
+        default="",
+        help="folder: each seed's (params, obs_stats, config dict) pickled, for offline analysis",
+    )
     args = p.parse_args()
     run_studies(
         study, args, "random_target_study.py", mara_mjx=getattr(mara_mjx, "__version__", None)

@@ -89,6 +89,12 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
     arrays, meta = ckpt.load_checkpoint(source)
     policy = policy_io.policy_from_checkpoint(arrays, meta)
     config = policy.config
+    if getattr(config, "ik_prior", ""):
+        raise ExportError(
+            f"{str(source)!r} was trained with ik_prior={config.ik_prior!r}, whose inputs "
+            "need the arm's Jacobian (mara_mjx.envs.task_space); .npz/.onnx export supports "
+            "joint-space policies only. Use mara_mjx.ppo.load_policy(checkpoint) in JAX instead"
+        )
     if getattr(config, "task_space_actions", False):
         raise ExportError(
             f"{str(source)!r} was trained with task_space_actions=true, whose joint targets "

@@ -265,3 +265,13 @@ def test_curves_cli(tmp_path, capsys):
         assert run_cli(plots_main, "plots", argv) == 2, argv
         err = capsys.readouterr().err
         assert err.startswith("plots: error:") and match in err, err
+
+
+def test_export_refuses_ik_prior_policies(tmp_path):
+    """An ik_prior policy's inputs need the arm's Jacobian: a clear ExportError."""
+    from mara_mjx.export import ExportError, export_policy
+
+    make_run(tmp_path / "run", "MARA", True, relative=True, ik_prior="residual")
+    with pytest.raises(ExportError, match="ik_prior"):
+        export_policy(tmp_path / "run", tmp_path / "policy.npz")
+    assert not (tmp_path / "policy.npz").exists()

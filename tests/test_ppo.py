@@ -6,6 +6,7 @@ The toy env and its trainer are built and compiled once per session.
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 
 import chex
@@ -669,3 +670,99 @@ def test_orientation_bonus_peaks_at_the_exact_pose_and_skips_collisions():
     assert for_env(config, mara_mjx.make("MARAOrient")).orientation_bonus == 5.0
     with pytest.raises(ValueError, match="orientation_bonus_angle"):
         PPOConfig(orientation_bonus_angle=0.0)
+
+
+def test_ik_prior_step_is_a_newton_step_toward_the_observed_pose():
+    """pose_step repeated from near a pose converges to it (position and orientation, and
+    position alone); rotation_vector is axis * angle for q and -q; the step is bounded."""
+    from mara_mjx.envs.geometry import quat_conj, quat_mul
+    from mara_mjx.envs.mara import _shared_arm
+    from mara_mjx.envs.task_space import MAX_STEP_JOINT, pose_step, rotation_vector
+
+    axis, angle = np.array([0.6, -0.8, 0.0]), 0.7
+    quat = np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])
+    for sign in (1.0, -1.0):
+        np.testing.assert_allclose(
+            rotation_vector(jnp.asarray(sign * quat)), angle * axis, atol=1e-6
+        )
+    np.testing.assert_allclose(rotation_vector(jnp.array([1.0, 0, 0, 0])), 0.0, atol=0)
+
+    arm = _shared_arm(False)
+    rng = np.random.default_rng(0)
+    target_q = jnp.asarray(rng.uniform(-1.2, 1.2, (16, 6)), jnp.float32)
+    q0 = target_q + jnp.asarray(rng.normal(0, 0.1, (16, 6)), jnp.float32)
+    pose = jax.vmap(lambda q: arm.pose_with(q, "lean", collide=False))
+    target = pose(target_q)
+
+    @functools.partial(jax.jit, static_argnums=1)
+    def run(q, orientation):
+        def one(q, _):
+            p = pose(q)
+            e = p.tcp_pos - target.tcp_pos
+            err = quat_mul(p.tcp_quat, quat_conj(target.tcp_quat))
+            dq = pose_step(q, e, err if orientation else None)
+            return q + dq, (
+                jnp.linalg.norm(e, axis=-1),
+                2 * jnp.arccos(jnp.minimum(1, jnp.abs(err[:, 0]))),
+                dq,
+            )
+
+        return jax.lax.scan(one, q, None, length=8)[1]
+
+    for orientation in (True, False):
+        dist, angle_err, dq = jax.tree.map(np.asarray, run(q0, orientation))
+        assert np.median(dist[0]) > 0.02 and np.median(dist[-1]) < 1e-5, orientation
+        assert np.mean(dist[-1] < 1e-3) >= 0.8
+        if orientation:
+            assert np.median(angle_err[0]) > 0.05 and np.median(angle_err[-1]) < 2e-3
+        assert np.abs(dq).max() <= MAX_STEP_JOINT * (1 + 1e-5)
+
+
+def test_ik_prior_residual_adds_the_ik_step_and_is_validated():
+    """ik_prior: both networks get the IK step's features; 'residual' adds the step to the
+    mean's displacement (the actor's own output is the same); bad values are refused, and
+    an env without a MARA observation is refused by for_env."""
+    import mara_mjx
+    from mara_mjx.ppo.config import for_env
+    from mara_mjx.ppo.networks import ik_prior_step
+
+    env = mara_mjx.make("MARACollisionOrient")
+    obs = env.reset(jax.random.key(0)).obs
+    obs = jnp.stack([obs, obs.at[:6].set(jnp.array([0.3, -0.4, 0.8, 0.1, 0.9, -0.2]))])
+    out = {}
+    for prior in ("features", "residual"):
+        config = for_env(PPOConfig(relative_actions=True, ik_prior=prior), env)
+        assert config.quat_index == 9
+        network = make_network(config, 6)
+        params = network.init(jax.random.key(3), obs[0], obs[0])
+        out[prior] = forward(network, params, None, obs, config.obs_clip)
+    step = ik_prior_step(obs, 9)
+    assert float(jnp.abs(step).max()) > 0.01
+    np.testing.assert_allclose(out["residual"][0], out["features"][0] + step, atol=1e-6)
+    np.testing.assert_array_equal(out["residual"][2], out["features"][2])
+    with pytest.raises(ValueError, match=r"ik_prior='ik' is not valid; choose one of"):
+        PPOConfig(relative_actions=True, ik_prior="ik")
+    with pytest.raises(ValueError, match="relative_actions"):
+        PPOConfig(ik_prior="residual")
+
+    class Other:
+        observation_layout = [{"name": "x", "start": 0, "stop": 4}]
+        action_size = 2
+
+    with pytest.raises(ValueError, match="MARA arm's observation"):
+        for_env(PPOConfig(ik_prior="features"), Other())
+
+
+def test_train_limit_penalty_is_zero_inside_the_soft_range_and_one_at_a_limit():
+    """limit_penalty: per joint 0 within f of the half-range, 1 at the limit, linear
+    between, summed over joints; the fields are validated."""
+    from mara_mjx.ppo.train import limit_penalty
+
+    lower, upper = jnp.array([-1.0, -3.0]), jnp.array([1.0, 1.0])  # centres 0, -1; halves 1, 2
+    q = jnp.array([[0.0, -1.0], [0.9, -1.0], [0.95, -1.0], [1.0, -1.0], [-1.0, 1.0], [1.0, -3.0]])
+    got = np.asarray(limit_penalty(q, lower, upper, 0.9))
+    np.testing.assert_allclose(got, [0.0, 0.0, 0.5, 1.0, 2.0, 2.0], atol=1e-5)
+    with pytest.raises(ValueError, match="train_limit_penalty"):
+        PPOConfig(train_limit_penalty=-1.0)
+    with pytest.raises(ValueError, match="train_limit_soft"):
+        PPOConfig(train_limit_soft=1.0)

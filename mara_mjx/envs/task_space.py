@@ -21,6 +21,13 @@ them hard to tell apart (benchmarks/NOTES.md section 20). Near a singularity the
 keeps the step bounded (|dq| <= |dx| / (2 DAMPING)).
 
     q_target = task_to_joint(q, u)          # (..., 6), (..., 6) -> (..., 6) rad
+
+The same step toward the target pose that an observation reports (`pose_step`: the TCP
+error e and the orientation error quat_err, read from the observation) is a Newton /
+resolved-rate step of inverse kinematics, which a policy may take as an input feature or
+as the base its output corrects (PPOConfig.ik_prior, residual-policy learning):
+
+    dq = pose_step(q, e, quat_err)          # (..., 6) rad, bounded
 """
 
 from __future__ import annotations
@@ -38,6 +45,12 @@ ROTATION_SCALE = 0.5
 """rad of TCP rotation per unit of the policy's rotation output."""
 DAMPING = 0.02
 """Damped-least-squares damping (m or rad; J J^T + DAMPING^2 I)."""
+MAX_POSITION_STEP = 0.05
+"""pose_step: the most TCP displacement (m) asked for in one step."""
+MAX_ROTATION_STEP = 0.25
+"""pose_step: the most TCP rotation (rad) asked for in one step."""
+MAX_STEP_JOINT = 0.25
+"""pose_step: the most any joint moves (rad) in one step (the step is scaled down whole)."""
 
 
 @functools.lru_cache(maxsize=1)
@@ -64,3 +77,53 @@ def task_to_joint(q: jax.Array, u: jax.Array) -> jax.Array:
         return q1 + dls_step(jax.lax.stop_gradient(jac), u1 * scale)
 
     return jnp.vectorize(one, signature="(6),(6)->(6)")(q, u)
+
+
+def rotation_vector(quat: jax.Array) -> jax.Array:
+    """(..., 4) (w, x, y, z) unit quaternion -> (..., 3) axis * angle (rad), angle in [0, pi]
+    (q and -q give the same vector)."""
+    sign = jnp.where(quat[..., :1] < 0, -1.0, 1.0).astype(quat.dtype)
+    w, v = quat[..., 0] * sign[..., 0], quat[..., 1:] * sign
+    n = jnp.linalg.norm(v, axis=-1)
+    small = n < 1e-6
+    scale = jnp.where(
+        small, 2.0 / jnp.maximum(w, 1e-6), 2.0 * jnp.arctan2(n, w) / jnp.where(small, 1.0, n)
+    )
+    return v * scale[..., None]
+
+
+def _clip_norm(x: jax.Array, limit: float) -> jax.Array:
+    n = jnp.linalg.norm(x, axis=-1, keepdims=True)
+    return x * jnp.minimum(1.0, limit / jnp.maximum(n, 1e-12))
+
+
+def pose_step(q: jax.Array, e: jax.Array, quat_err: jax.Array | None = None) -> jax.Array:
+    """One bounded damped-least-squares step of the nominal arm's joints toward the target
+    an observation reports: q (..., 6) rad, e (..., 3) = p_tcp - p_target (m), quat_err
+    (..., 4) = quat_tcp (x) conj(quat_target) or None (position only) -> dq (..., 6) rad.
+
+    The TCP is asked to move by -e (at most MAX_POSITION_STEP) and to turn by the inverse
+    of the error rotation, -rotation_vector(quat_err) in the world frame (at most
+    MAX_ROTATION_STEP); dq = J^T (J J^T + DAMPING^2 I)^-1 dx with the position rows of J
+    only when quat_err is None, then scaled down whole so that no joint moves more than
+    MAX_STEP_JOINT. Near the target it is a Newton step (the error falls quadratically
+    when repeated); far from it, a bounded move in the direction of the target. No
+    gradient flows through it."""
+    chain = nominal_chain()
+    q, e = jax.lax.stop_gradient(q), jax.lax.stop_gradient(e)
+    rot = None if quat_err is None else jax.lax.stop_gradient(quat_err)
+
+    def one(q1: jax.Array, e1: jax.Array, *r: jax.Array) -> jax.Array:
+        jac = chain.jacobian(q1)
+        dx = _clip_norm(-e1, MAX_POSITION_STEP)
+        if r:
+            dx = jnp.concatenate([dx, _clip_norm(-rotation_vector(r[0]), MAX_ROTATION_STEP)])
+        else:
+            jac = jac[:3]
+        dq = dls_step(jac, dx)
+        big = jnp.max(jnp.abs(dq))
+        return dq * jnp.minimum(1.0, MAX_STEP_JOINT / jnp.maximum(big, 1e-12))
+
+    if rot is None:
+        return jnp.vectorize(one, signature="(6),(3)->(6)")(q, e)
+    return jnp.vectorize(one, signature="(6),(3),(4)->(6)")(q, e, rot)

@@ -23,6 +23,7 @@ from mara_mjx.config import check_range as _check_range
 from mara_mjx.config import is_int as _is_int
 
 LR_SCHEDULES = ("linear", "exp", "constant")
+IK_PRIORS = ("", "features", "residual")
 # The optimiser's step counter is an int32 inside the jitted update.
 _MAX_OPTIMIZER_STEPS = 2**31 - 1
 
@@ -101,6 +102,18 @@ class PPOConfig(_ConfigMixin):
     driver, whose servos move at most velocity x control_dt per step (0.3 rad/s x 0.05 s =
     0.015 rad): a policy trained on the teleporting train driver otherwise learns to jump
     through obstacles and far across joint space (benchmarks/NOTES.md section 20). 0: off."""
+    ik_prior: Literal["", "features", "residual"] = ""
+    """An inverse-kinematics step as prior knowledge of the arm (MARA arms; q then e first
+    in the observation, quat_err where the task has it): dq = one bounded damped-least-
+    squares step of the nominal arm toward the pose the observation reports
+    (mara_mjx.envs.task_space.pose_step, computed from the observation alone, no
+    gradient). 'features': tanh(dq / s) at three scales s (0.002, 0.03, 0.3 rad) are extra
+    inputs of both networks, so that "turn the tool onto the target while keeping its
+    position" is a nearly linear function of the inputs in every arm posture. 'residual'
+    (needs relative_actions): the features, and dq added to the mean's joint displacement,
+    so the actor learns a correction to the IK step (residual policy learning: Silver et
+    al. 2018, Johannink et al. 2019). The env, its action and its reward are unchanged.
+    '': off."""
     hidden_obs: tuple[int, ...] = ()
     """Observation indices that neither network sees (set to 0 after normalisation), e.g.
     9 10 11 for the TCP velocity of MARA/MARACollision (13 14 15 for the Orient tasks)."""
@@ -152,6 +165,17 @@ class PPOConfig(_ConfigMixin):
     section 20); this term's maximiser is the same exact pose and its slope in theta is
     w / orientation_bonus_angle there. 0 is off; cleared for an env without quat_err in
     its observation (the orientation is then not part of the task)."""
+    train_limit_penalty: float = 0.0
+    """Training only: subtract w sum_j relu(|q_j - c_j| - f h_j) / ((1 - f) h_j) from
+    every step's reward (q the observed joints at the step's start, c_j and h_j the
+    centre and half-range of joint j's limits, f = `train_limit_soft`; each joint's term
+    is 0 inside the soft range and 1 at its limit; legged_gym's dof_pos_limits), moving
+    linearly to 0 by `train_reward_until` like the other curricula. Against policies that
+    settle with a joint pinned at its limit, which leaves the wrist too few degrees of
+    freedom for the orientation (benchmarks/NOTES.md section 23: every random-target
+    policy held joint 4 at +-pi). 0: off; ignored for an env without joint limits."""
+    train_limit_soft: float = 0.9
+    """The fraction f of each joint's half-range inside which `train_limit_penalty` is 0."""
     orientation_bonus_angle: float = 0.1
     """rad: the angle scale of `orientation_bonus`."""
     orientation_bonus_distance: float = 0.005
@@ -258,6 +282,13 @@ class PPOConfig(_ConfigMixin):
                 "task_space_actions=true needs relative_actions=true (the TCP displacement is "
                 "taken from the observed joints); set both, or task_space_actions=false"
             )
+        if self.ik_prior not in IK_PRIORS:
+            raise ValueError(f"ik_prior={self.ik_prior!r} is not valid; choose one of {IK_PRIORS}")
+        if self.ik_prior == "residual" and not self.relative_actions:
+            raise ValueError(
+                "ik_prior='residual' needs relative_actions=true (the IK step is added to the "
+                "displacement from the observed joints); set both, or ik_prior='features'"
+            )
         _check_range("max_joint_step", self.max_joint_step, 0.0, math.pi)
         if self.max_joint_step > 0.0 and not self.relative_actions:
             raise ValueError(
@@ -268,6 +299,8 @@ class PPOConfig(_ConfigMixin):
         _check_range("train_reward_until", self.train_reward_until, 0.0, 1.0, low_open=True)
         _check_range("train_collision_penalty", self.train_collision_penalty, 0.0, math.inf)
         _check_range("orientation_bonus", self.orientation_bonus, 0.0, math.inf)
+        _check_range("train_limit_penalty", self.train_limit_penalty, 0.0, math.inf)
+        _check_range("train_limit_soft", self.train_limit_soft, 0.0, 0.99)
         _check_range(
             "orientation_bonus_angle", self.orientation_bonus_angle, 0.0, math.pi, low_open=True
         )
@@ -335,7 +368,14 @@ def for_env(config: PPOConfig, env: Any) -> PPOConfig:
     `orientation_bonus` for one without quat_err."""
     layout = getattr(env, "observation_layout", None) or []
     starts = [int(part["start"]) for part in layout if part.get("name") == "quat_err"]
-    index = starts[0] if (config.canonical_quat and starts) else -1
+    index = starts[0] if ((config.canonical_quat or config.ik_prior) and starts) else -1
+    if config.ik_prior:
+        where = {part.get("name"): int(part["start"]) for part in layout}
+        if where.get("q") != 0 or where.get("e") != 6 or getattr(env, "action_size", 6) != 6:
+            raise ValueError(
+                f"ik_prior={config.ik_prior!r} needs a MARA arm's observation (q at 0, e at 6) "
+                "and 6 joint actions; this env has neither; set ik_prior=''"
+            )
     resolved = config if index == config.quat_index else config.replace(quat_index=index)
     # An env without the spec's reward hyperparameters (a user's own Env) gets neither
     # training-reward curriculum: the preset's defaults cannot apply to it, and the saved

@@ -12,7 +12,10 @@ that "stay" is the output 0). The log-std can be floored (`log_std_floor`), and 
 observation entries hidden from both networks (`hidden_obs`). With `task_space_actions`
 the actor's output is a TCP displacement that one damped-least-squares step through the
 arm's Jacobian turns into the joint displacement (mara_mjx.envs.task_space). With
-`max_joint_step` m > 0 the joint displacement is squashed to m tanh(delta / m), so the
+`ik_prior` an inverse-kinematics step toward the observed target enters as extra input
+features ('features') and, with 'residual', is added to the joint displacement the actor
+corrects (mara_mjx.envs.task_space.pose_step). With `max_joint_step` m > 0 the joint
+displacement is squashed to m tanh(delta / m), so the
 mean moves each joint less than m per control step (and the trainer clips its samples to
 the same box), as the real driver's servos move at most `velocity` x control_dt.
 
@@ -59,6 +62,8 @@ class ActorCritic(nn.Module):
     quat_index: int = -1
     task_space: bool = False
     max_joint_step: float = 0.0
+    ik_prior: str = ""
+    ik_quat_index: int = -1
 
     @nn.compact
     def __call__(
@@ -68,6 +73,11 @@ class ActorCritic(nn.Module):
         mean (..., A), log_std (..., A), value (...)."""
         if self.hidden_obs:  # entries neither network sees (zero after normalisation)
             obs = obs.at[..., jnp.asarray(self.hidden_obs)].set(0.0)
+        if self.ik_prior:  # the IK step toward the observed target (PPOConfig.ik_prior)
+            if raw_obs is None:
+                raise ValueError("ik_prior: the network needs the raw observation")
+            ik_step = ik_prior_step(raw_obs, self.ik_quat_index)
+            obs = jnp.concatenate([obs, *(jnp.tanh(ik_step / s) for s in IK_FEATURE_SCALES)], -1)
         mean = MLP(self.hidden_sizes, self.action_size, 0.01, name="actor")(obs)
         if self.relative_actions:
             if raw_obs is None:
@@ -83,6 +93,8 @@ class ActorCritic(nn.Module):
                 delta = task_to_joint(q, mean) - q
             else:
                 delta = mean
+            if self.ik_prior == "residual":
+                delta = delta + ik_step
             if self.max_joint_step > 0.0:  # |delta| < m per joint, smoothly (PPOConfig)
                 delta = self.max_joint_step * jnp.tanh(delta / self.max_joint_step)
             mean = q + delta
@@ -92,6 +104,19 @@ class ActorCritic(nn.Module):
         )
         log_std = jnp.maximum(log_std, self.log_std_floor)
         return mean, jnp.broadcast_to(log_std, mean.shape), value
+
+
+IK_FEATURE_SCALES = (0.002, 0.03, 0.3)
+"""rad: the IK step's joint displacement enters the networks as tanh(dq / s) at each s."""
+
+
+def ik_prior_step(raw_obs: jax.Array, quat_index: int) -> jax.Array:
+    """The bounded IK step (mara_mjx.envs.task_space.pose_step) toward the pose a MARA
+    observation reports: q = obs[:6], e = obs[6:9], quat_err at quat_index (-1: none)."""
+    from mara_mjx.envs.task_space import pose_step
+
+    quat = raw_obs[..., quat_index : quat_index + 4] if quat_index >= 0 else None
+    return pose_step(raw_obs[..., :6], raw_obs[..., 6:9], quat)
 
 
 def canonical_quat(obs: jax.Array, index: int) -> jax.Array:
@@ -117,6 +142,8 @@ def make_network(config: Any, action_size: int) -> ActorCritic:
         config.quat_index if config.canonical_quat else -1,
         config.task_space_actions,
         config.max_joint_step,
+        config.ik_prior,
+        config.quat_index if config.ik_prior else -1,
     )
 
 

@@ -136,6 +136,13 @@ def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
     )
 
 
+def limit_penalty(q: jax.Array, lower: jax.Array, upper: jax.Array, soft: float) -> jax.Array:
+    """sum_j relu(|q_j - c_j| - soft h_j) / ((1 - soft) h_j): 0 inside the soft range, 1 per
+    joint at its limit (PPOConfig.train_limit_penalty); q (..., J)."""
+    centre, half = (upper + lower) / 2, (upper - lower) / 2
+    return jnp.sum(jax.nn.relu(jnp.abs(q - centre) - soft * half) / ((1 - soft) * half), -1)
+
+
 def orientation_bonus(metrics: dict[str, jax.Array], config: PPOConfig) -> jax.Array:
     """w exp(-d / d0) exp(-theta / theta0) on non-colliding steps (PPOConfig.orientation_bonus)."""
     bonus = config.orientation_bonus * jnp.exp(
@@ -370,6 +377,12 @@ def make_train(
             reward = reward - (1.0 - frac) * config.train_collision_penalty * penalty
         if config.orientation_bonus > 0.0:  # PPOConfig.orientation_bonus
             reward = reward + orientation_bonus(traj.metrics, config)
+        if config.train_limit_penalty > 0.0 and hasattr(env, "joint_lower"):  # PPOConfig field
+            frac = jnp.clip(state.update.astype(jnp.float32) / until, 0.0, 1.0)
+            q = traj.obs[..., : lower.shape[-1]]
+            reward = reward - (1.0 - frac) * config.train_limit_penalty * limit_penalty(
+                q, lower, upper, config.train_limit_soft
+            )
         _, _, value = policy(state.params, stats, traj.obs)
         _, _, final_value = policy(state.params, stats, traj.final_obs)
         next_value = final_value * (1.0 - traj.terminated.astype(jnp.float32))
