@@ -1,0 +1,82 @@
+"""Where random-target policies settle: joint-limit saturation and orientation error
+(issue 12, benchmarks/NOTES.md section 23).
+
+Loads the per-seed params that `random_target_study.py --save-params DIR` pickles
+((params, obs_stats, config dict) per seed), rolls each deterministic policy out from the
+reset pose to `--poses` held-out poses (evaluation stream, seed 7) for `--steps` steps on
+the train driver, and prints per seed: the median final distance, the mean orientation
+error per axis, the fraction of poses with any axis over 10 deg, and per joint the
+fraction of final poses within 0.02 rad of a limit (all poses, those over 10 deg, the
+rest), with the mean and spread of the final joints.
+
+    python benchmarks/random_target_postures.py DIR/MARACollisionOrientRandomTarget_default \
+        --seeds 0 1 2 3 4
+"""
+
+from __future__ import annotations
+
+import argparse
+import pickle
+from pathlib import Path
+
+import jax
+import numpy as np
+
+import mara_mjx
+from mara_mjx.envs import targets
+from mara_mjx.ppo import target_eval
+from mara_mjx.ppo.config import PPOConfig
+from mara_mjx.ppo.policy import make_policy
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("folder", type=Path, help="a --save-params folder of one (task, variant)")
+    p.add_argument("--task", default="MARACollisionOrientRandomTarget")
+    p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
+    p.add_argument("--poses", type=int, default=200)
+    p.add_argument("--steps", type=int, default=300)
+    args = p.parse_args(argv)
+
+    env = mara_mjx.make(args.task)
+    poses = targets.evaluation_poses(env.arm.mj_model, env.region, args.poses, 7)
+    params = target_eval.with_targets(env.make_params(reset_noise=0.0), poses.pos, poses.quat)
+    lo, hi = np.asarray(env.joint_lower), np.asarray(env.joint_upper)
+    keys = jax.random.split(jax.random.key(0), args.poses)
+    for seed in args.seeds:
+        with open(args.folder / f"seed{seed}.pkl", "rb") as f:
+            net_params, stats, cfg = pickle.load(f)
+        cfg = {k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}
+        policy = make_policy(net_params, PPOConfig(**cfg), stats)
+
+        @jax.jit
+        def rollout(keys, params, policy=policy):
+            def one(key, prm):
+                def body(st, _):
+                    return env.step(st, policy(st.obs)), None
+
+                st, _ = jax.lax.scan(body, env.reset(key, prm), None, length=args.steps)
+                return st.obs, st.metrics["orientation_error"], st.metrics["distance"]
+
+            return jax.vmap(one)(keys, params)
+
+        obs, ori, dist = jax.device_get(rollout(keys, params))
+        q, ori = obs[:, :6], np.degrees(ori)
+        at = (np.abs(q - lo) < 0.02) | (np.abs(q - hi) < 0.02)
+        bad = ori.max(1) > 10
+
+        def frac(mask):
+            return at[mask].mean(0).round(2).tolist() if mask.any() else None
+
+        print(
+            f"seed {seed}: distance median {np.median(dist) * 1000:.2f} mm, orientation mean "
+            f"{ori.mean(0).round(1).tolist()} deg, any axis > 10 deg {bad.mean():.2f}\n"
+            f"  joint at a limit: all {frac(np.ones_like(bad))}, > 10 deg {frac(bad)}, "
+            f"<= 10 deg {frac(~bad)}\n"
+            f"  final q mean {q.mean(0).round(2).tolist()}, std {q.std(0).round(2).tolist()}",
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()
