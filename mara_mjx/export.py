@@ -89,18 +89,17 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
     arrays, meta = ckpt.load_checkpoint(source)
     policy = policy_io.policy_from_checkpoint(arrays, meta)
     config = policy.config
-    if getattr(config, "ik_prior", ""):
-        raise ExportError(
-            f"{str(source)!r} was trained with ik_prior={config.ik_prior!r}, whose inputs "
-            "need the arm's Jacobian (mara_mjx.envs.task_space); .npz/.onnx export supports "
-            "joint-space policies only. Use mara_mjx.ppo.load_policy(checkpoint) in JAX instead"
-        )
-    if getattr(config, "task_space_actions", False):
-        raise ExportError(
-            f"{str(source)!r} was trained with task_space_actions=true, whose joint targets "
-            "need the arm's Jacobian (mara_mjx.envs.task_space); .npz/.onnx export supports "
-            "joint-space policies only. Use mara_mjx.ppo.load_policy(checkpoint) in JAX instead"
-        )
+    # options whose actions need the arm's Jacobian, which the numpy/ONNX MLP does not have
+    for option, value in (
+        ("ik_prior", getattr(config, "ik_prior", "")),
+        ("task_space_actions", getattr(config, "task_space_actions", False)),
+    ):
+        if value:
+            raise ExportError(
+                f"{str(source)!r} was trained with {option}={value!r}, which needs the arm's "
+                "Jacobian (mara_mjx.envs.task_space); .npz/.onnx export supports joint-space "
+                "policies only. Use mara_mjx.ppo.load_policy(checkpoint) in JAX instead"
+            )
 
     env_name, env_config = meta["env_name"], meta["env_config"]
     try:

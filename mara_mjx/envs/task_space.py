@@ -38,6 +38,7 @@ import jax
 import jax.numpy as jnp
 
 from mara_mjx.envs.chain import Chain
+from mara_mjx.envs.geometry import quat_canonical
 
 POSITION_SCALE = 0.1
 """m of TCP motion per unit of the policy's position output."""
@@ -82,8 +83,8 @@ def task_to_joint(q: jax.Array, u: jax.Array) -> jax.Array:
 def rotation_vector(quat: jax.Array) -> jax.Array:
     """(..., 4) (w, x, y, z) unit quaternion -> (..., 3) axis * angle (rad), angle in [0, pi]
     (q and -q give the same vector)."""
-    sign = jnp.where(quat[..., :1] < 0, -1.0, 1.0).astype(quat.dtype)
-    w, v = quat[..., 0] * sign[..., 0], quat[..., 1:] * sign
+    quat = quat_canonical(quat)
+    w, v = quat[..., 0], quat[..., 1:]
     n = jnp.linalg.norm(v, axis=-1)
     small = n < 1e-6
     scale = jnp.where(

@@ -177,6 +177,11 @@ def make_train(
     curriculum = reward_curriculum(config.train_reward)
     until = max(1.0, config.train_reward_until * config.num_updates)
 
+    def curriculum_frac(update: jax.Array) -> jax.Array:
+        """How far the training-only curricula are toward the env's own reward: 0 at the
+        first update, 1 from train_reward_until of the updates on (PPOConfig)."""
+        return jnp.clip(update.astype(jnp.float32) / until, 0.0, 1.0)
+
     def curriculum_params(params: Any, frac: jax.Array) -> Any:
         """`params` with `train_reward` and `train_reset_noise` at `frac` (0: the
         PPOConfig values, 1: the env's own) of the way to the env's defaults."""
@@ -203,8 +208,7 @@ def make_train(
         train_reward_until of the updates (PPOConfig)."""
         if not curriculum and config.train_reset_noise <= 0.0:
             return env_state
-        frac = jnp.clip(update.astype(jnp.float32) / until, 0.0, 1.0)
-        params = curriculum_params(env_state.env_state.params, frac)
+        params = curriculum_params(env_state.env_state.params, curriculum_frac(update))
         return env_state.replace(env_state=env_state.env_state.replace(params=params))
 
     def stats_in_use(state: RunnerState) -> RunningStats | None:
@@ -368,19 +372,18 @@ def make_train(
         env_state, traj, probe = rollout(state.params, stats, env_state, rollout_key)
 
         reward = traj.reward
+        fade = 1.0 - curriculum_frac(state.update)  # the training-only penalties' weight
         if config.train_collision_penalty > 0.0 and "collided" in traj.metrics:
-            frac = jnp.clip(state.update.astype(jnp.float32) / until, 0.0, 1.0)
             own = env_state.env_state.params.reward  # (N,) leaves
             penalty = collision_penalty(
                 traj.metrics["distance"], traj.metrics["collided"], own.delta, own.eta
             )
-            reward = reward - (1.0 - frac) * config.train_collision_penalty * penalty
+            reward = reward - fade * config.train_collision_penalty * penalty
         if config.orientation_bonus > 0.0:  # PPOConfig.orientation_bonus
             reward = reward + orientation_bonus(traj.metrics, config)
         if config.train_limit_penalty > 0.0 and hasattr(env, "joint_lower"):  # PPOConfig field
-            frac = jnp.clip(state.update.astype(jnp.float32) / until, 0.0, 1.0)
             q = traj.obs[..., : lower.shape[-1]]
-            reward = reward - (1.0 - frac) * config.train_limit_penalty * limit_penalty(
+            reward = reward - fade * config.train_limit_penalty * limit_penalty(
                 q, lower, upper, config.train_limit_soft
             )
         _, _, value = policy(state.params, stats, traj.obs)
