@@ -10,7 +10,7 @@ fraction of final poses within 0.02 rad of a limit (all poses, those over 10 deg
 rest), with the mean and spread of the final joints.
 
     python benchmarks/random_target_postures.py DIR/MARACollisionOrientRandomTarget_default \
-        --seeds 0 1 2 3 4
+        --seeds 0 1 2 3 4 [--ik-finish 100]
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import numpy as np
 
 import mara_mjx
 from mara_mjx.envs import targets
+from mara_mjx.envs.task_space import pose_step
 from mara_mjx.ppo import target_eval
 from mara_mjx.ppo.config import PPOConfig
 from mara_mjx.ppo.policy import make_policy
@@ -36,6 +37,17 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
     p.add_argument("--poses", type=int, default=200)
     p.add_argument("--steps", type=int, default=300)
+    p.add_argument(
+        "--ik-finish",
+        type=int,
+        default=0,
+        help="then this many steps of the bare IK step (task_space.pose_step) from where "
+        "the policy left the arm: how far the near-goal error is the policy's, not the "
+        "branch's",
+    )
+    p.add_argument(
+        "--wrap", action="store_true", help="the finishing IK step with wrap_last (pose_step)"
+    )
     args = p.parse_args(argv)
 
     env = mara_mjx.make(args.task)
@@ -43,6 +55,7 @@ def main(argv: list[str] | None = None) -> None:
     params = target_eval.with_targets(env.make_params(reset_noise=0.0), poses.pos, poses.quat)
     lo, hi = np.asarray(env.joint_lower), np.asarray(env.joint_upper)
     keys = jax.random.split(jax.random.key(0), args.poses)
+    qi = next(p["start"] for p in env.observation_layout if p["name"] == "quat_err")
     for seed in args.seeds:
         with open(args.folder / f"seed{seed}.pkl", "rb") as f:
             net_params, stats, cfg = pickle.load(f)
@@ -55,7 +68,15 @@ def main(argv: list[str] | None = None) -> None:
                 def body(st, _):
                     return env.step(st, policy(st.obs)), None
 
+                def ik(st, _):
+                    o = st.obs
+                    return env.step(
+                        st, o[:6] + pose_step(o[:6], o[6:9], o[qi : qi + 4], args.wrap)
+                    ), None
+
                 st, _ = jax.lax.scan(body, env.reset(key, prm), None, length=args.steps)
+                if args.ik_finish:
+                    st, _ = jax.lax.scan(ik, st, None, length=args.ik_finish)
                 return st.obs, st.metrics["orientation_error"], st.metrics["distance"]
 
             return jax.vmap(one)(keys, params)

@@ -753,6 +753,96 @@ def test_ik_prior_residual_adds_the_ik_step_and_is_validated():
         for_env(PPOConfig(ik_prior="features"), Other())
 
 
+def test_ik_gate_fades_the_learnt_correction_to_zero_at_the_target():
+    """ik_gate s: mean = q + ik_step + tanh(|e| / s) x the actor's correction; at the
+    target position (e = 0) the mean is q + ik_step exactly, far from it the ungated
+    residual; bad values are refused."""
+    import mara_mjx
+    from mara_mjx.ppo.config import for_env
+    from mara_mjx.ppo.networks import ik_gate, ik_prior_step
+
+    env = mara_mjx.make("MARACollisionOrient")
+    obs = env.reset(jax.random.key(0)).obs
+    at_goal = obs.at[6:9].set(0.0)
+    near = obs.at[6:9].set(jnp.array([0.003, 0.0, -0.004]))
+    batch = jnp.stack([obs, at_goal, near])
+    outs = {}
+    for gate in (0.0, 0.01):
+        config = for_env(PPOConfig(relative_actions=True, ik_prior="residual", ik_gate=gate), env)
+        network = make_network(config, 6)
+        params = network.init(jax.random.key(3), batch[0], batch[0])
+        # a visible correction: the actor's head biased away from 0
+        head = params["params"]["actor"]
+        last = sorted(k for k in head if k.startswith("Dense"))[-1]
+        head[last]["bias"] = head[last]["bias"] + 0.05
+        outs[gate] = forward(network, params, None, batch, config.obs_clip)[0]
+    q, step = batch[:, :6], ik_prior_step(batch, 9)
+    g = ik_gate(batch, 0.01)
+    np.testing.assert_allclose(g[1], 0.0, atol=1e-5)
+    np.testing.assert_allclose(g[2], np.tanh(0.5), rtol=1e-4)
+    assert float(g[0]) > 0.99  # the reset pose is far from the target
+    correction = outs[0.0] - q - step
+    assert float(jnp.abs(correction).min()) > 0.01
+    np.testing.assert_allclose(outs[0.01], q + step + g[:, None] * correction, atol=1e-5)
+    np.testing.assert_allclose(outs[0.01][1], q[1] + step[1], atol=1e-5)
+    with pytest.raises(ValueError, match="ik_gate=0.01 gates the correction"):
+        PPOConfig(relative_actions=True, ik_prior="features", ik_gate=0.01)
+    with pytest.raises(ValueError, match="ik_gate"):
+        PPOConfig(relative_actions=True, ik_prior="residual", ik_gate=-1.0)
+    with pytest.raises(ValueError, match="ik_wrap=true changes the IK step"):
+        PPOConfig(ik_wrap=True)
+
+
+def test_pose_step_wrap_takes_the_last_joint_the_long_way_past_its_limit():
+    """pose_step(wrap_last=True): near the target, where the last joint's Newton target
+    lies past its limit, the step on it goes the other way (the same angle 2 pi away);
+    elsewhere (no limit in the way, or far from the target) it is the plain step.
+    Repeated, the wrapped step reaches the pose the plain one stops short of."""
+    from mara_mjx.envs.geometry import quat_conj, quat_mul
+    from mara_mjx.envs.task_space import (
+        last_joint_range,
+        nominal_chain,
+        pose_step,
+        rotation_vector,
+    )
+
+    chain = nominal_chain()
+    lo6, hi6 = last_joint_range()
+    assert hi6 - lo6 > 2 * np.pi - 0.01
+    goal = jnp.array([0.4, -0.5, 0.9, 0.1, 1.2, hi6 - 0.1])
+    tpos, tquat = chain.tcp(goal)
+
+    def error(q):
+        pos, quat = chain.tcp(q)
+        return pos - tpos, quat_mul(quat, quat_conj(tquat))
+
+    def run(q, wrap, n=80):
+        for _ in range(n):
+            e, r = error(q)
+            q = jnp.clip(q + pose_step(q, e, r, wrap), lo6, hi6)
+        return q
+
+    # no limit in the way: the same step with and without wrap
+    near = goal.at[5].add(-0.3)
+    e, r = error(near)
+    np.testing.assert_allclose(pose_step(near, e, r, True), pose_step(near, e, r, False))
+    # joint 6 at -hi6 + 0.2: the target's angle hi6 - 0.1 is 0.3 rad away downward (across
+    # +-pi), past the lower limit; the wrapped step goes up, the long way round
+    blocked = goal.at[5].set(lo6 + 0.2)
+    e, r = error(blocked)
+    plain, wrapped = pose_step(blocked, e, r, False), pose_step(blocked, e, r, True)
+    assert float(plain[5]) < 0.0 < float(wrapped[5])
+    q_plain, q_wrap = run(blocked, False), run(blocked, True)
+    assert float(jnp.linalg.norm(rotation_vector(error(q_plain)[1]))) > 0.05
+    assert float(jnp.linalg.norm(rotation_vector(error(q_wrap)[1]))) < 1e-3
+    np.testing.assert_allclose(q_wrap, goal, atol=1e-3)
+    # far from the target position the step is the plain one
+    far = blocked.at[1].add(0.3)
+    e, r = error(far)
+    assert float(jnp.linalg.norm(e)) > 0.02
+    np.testing.assert_allclose(pose_step(far, e, r, True), pose_step(far, e, r, False))
+
+
 def test_train_limit_penalty_is_zero_inside_the_soft_range_and_one_at_a_limit():
     """limit_penalty: per joint 0 within f of the half-range, 1 at the limit, linear
     between, summed over joints; the fields are validated."""

@@ -28,6 +28,10 @@ resolved-rate step of inverse kinematics, which a policy may take as an input fe
 as the base its output corrects (PPOConfig.ik_prior, residual-policy learning):
 
     dq = pose_step(q, e, quat_err)          # (..., 6) rad, bounded
+
+The last joint (the tool flange's roll, range a full turn) is taken the long way round
+where the short way would end past its limit: the same tool pose, 2 pi of that joint
+away, as a local step would otherwise stop at the limit (benchmarks/NOTES.md section 24).
 """
 
 from __future__ import annotations
@@ -52,6 +56,18 @@ MAX_ROTATION_STEP = 0.25
 """pose_step: the most TCP rotation (rad) asked for in one step."""
 MAX_STEP_JOINT = 0.25
 """pose_step: the most any joint moves (rad) in one step (the step is scaled down whole)."""
+WRAP_NEAR = 0.02
+"""pose_step(wrap_last=True): m, the TCP distance within which the last joint may be
+taken the long way round (farther, the full Newton step is no estimate of where it ends)."""
+
+
+@functools.lru_cache(maxsize=1)
+def last_joint_range() -> tuple[float, float]:
+    """(lower, upper) of the nominal arm's last joint (rad)."""
+    from mara_mjx.envs.arm import load_model
+
+    lo, hi = load_model().jnt_range[5]
+    return float(lo), float(hi)
 
 
 @functools.lru_cache(maxsize=1)
@@ -98,7 +114,9 @@ def _clip_norm(x: jax.Array, limit: float) -> jax.Array:
     return x * jnp.minimum(1.0, limit / jnp.maximum(n, 1e-12))
 
 
-def pose_step(q: jax.Array, e: jax.Array, quat_err: jax.Array | None = None) -> jax.Array:
+def pose_step(
+    q: jax.Array, e: jax.Array, quat_err: jax.Array | None = None, wrap_last: bool = False
+) -> jax.Array:
     """One bounded damped-least-squares step of the nominal arm's joints toward the target
     an observation reports: q (..., 6) rad, e (..., 3) = p_tcp - p_target (m), quat_err
     (..., 4) = quat_tcp (x) conj(quat_target) or None (position only) -> dq (..., 6) rad.
@@ -108,9 +126,15 @@ def pose_step(q: jax.Array, e: jax.Array, quat_err: jax.Array | None = None) -> 
     MAX_ROTATION_STEP); dq = J^T (J J^T + DAMPING^2 I)^-1 dx with the position rows of J
     only when quat_err is None, then scaled down whole so that no joint moves more than
     MAX_STEP_JOINT. Near the target it is a Newton step (the error falls quadratically
-    when repeated); far from it, a bounded move in the direction of the target. No
-    gradient flows through it."""
+    when repeated); far from it, a bounded move in the direction of the target. With the
+    orientation and wrap_last, within WRAP_NEAR of the target, where the full Newton step
+    would take the last joint past its limit and
+    that joint spans a full turn, it moves the other way (toward the same angle less or
+    plus 2 pi, at most MAX_STEP_JOINT per step): a local step would stop at the limit
+    with the tool's roll off. No gradient flows through it."""
     chain = nominal_chain()
+    lo6, hi6 = last_joint_range()
+    wrap = wrap_last and hi6 - lo6 >= 2 * jnp.pi - 0.01
     q, e = jax.lax.stop_gradient(q), jax.lax.stop_gradient(e)
     rot = None if quat_err is None else jax.lax.stop_gradient(quat_err)
 
@@ -122,6 +146,15 @@ def pose_step(q: jax.Array, e: jax.Array, quat_err: jax.Array | None = None) -> 
         else:
             jac = jac[:3]
         dq = dls_step(jac, dx)
+        if r and wrap:  # the last joint the long way round where the short way is blocked
+            full = dls_step(jac, jnp.concatenate([-e1, -rotation_vector(r[0])]))
+            goal = q1[5] + full[5]
+            shift = jnp.where(goal > hi6, -2 * jnp.pi, jnp.where(goal < lo6, 2 * jnp.pi, 0.0))
+            other = goal + shift
+            near = jnp.linalg.norm(e1) < WRAP_NEAR  # far away the Newton step means little
+            use = near & (shift != 0.0) & (other >= lo6) & (other <= hi6)
+            long_way = jnp.clip(other - q1[5], -MAX_STEP_JOINT, MAX_STEP_JOINT)
+            dq = dq.at[5].set(jnp.where(use, long_way, dq[5]))
         big = jnp.max(jnp.abs(dq))
         return dq * jnp.minimum(1.0, MAX_STEP_JOINT / jnp.maximum(big, 1e-12))
 

@@ -114,6 +114,18 @@ class PPOConfig(_ConfigMixin):
     so the actor learns a correction to the IK step (residual policy learning: Silver et
     al. 2018, Johannink et al. 2019). The env, its action and its reward are unchanged.
     '': off."""
+    ik_gate: float = 0.0
+    """m, with ik_prior='residual', > 0: the actor's learnt correction is multiplied by
+    tanh(|e| / s) (s this value, e the observed TCP position error), so within about s of
+    the target position the IK step alone moves the arm: a Newton step of the whole pose,
+    whose error falls to 0 from the branch the policy has taken, instead of settling
+    where the correction's own bias balances it (benchmarks/NOTES.md section 24). Far
+    from the target the residual is unchanged. 0: off."""
+    ik_wrap: bool = False
+    """With ik_prior: the IK step takes the last joint (the flange's roll, a full turn of
+    range) the long way round where, within 2 cm of the target, the short way would end
+    past its limit (envs/task_space.pose_step wrap_last): the same tool pose, which a
+    local step would otherwise never reach (benchmarks/NOTES.md section 24)."""
     hidden_obs: tuple[int, ...] = ()
     """Observation indices that neither network sees (set to 0 after normalisation), e.g.
     9 10 11 for the TCP velocity of MARA/MARACollision (13 14 15 for the Orient tasks)."""
@@ -288,6 +300,17 @@ class PPOConfig(_ConfigMixin):
             raise ValueError(
                 "ik_prior='residual' needs relative_actions=true (the IK step is added to the "
                 "displacement from the observed joints); set both, or ik_prior='features'"
+            )
+        _check_range("ik_gate", self.ik_gate, 0.0, math.inf)
+        if self.ik_gate > 0.0 and self.ik_prior != "residual":
+            raise ValueError(
+                f"ik_gate={self.ik_gate} gates the correction of ik_prior='residual', but "
+                f"ik_prior={self.ik_prior!r}; set ik_prior='residual', or ik_gate=0"
+            )
+        if self.ik_wrap and not self.ik_prior:
+            raise ValueError(
+                "ik_wrap=true changes the IK step of ik_prior, which is off; "
+                "set ik_prior='features' or 'residual', or ik_wrap=false"
             )
         _check_range("max_joint_step", self.max_joint_step, 0.0, math.pi)
         if self.max_joint_step > 0.0 and not self.relative_actions:

@@ -14,7 +14,8 @@ the actor's output is a TCP displacement that one damped-least-squares step thro
 arm's Jacobian turns into the joint displacement (mara_mjx.envs.task_space). With
 `ik_prior` an inverse-kinematics step toward the observed target enters as extra input
 features ('features') and, with 'residual', is added to the joint displacement the actor
-corrects (mara_mjx.envs.task_space.pose_step). With `max_joint_step` m > 0 the joint
+corrects (mara_mjx.envs.task_space.pose_step), the correction faded out near the target
+with `ik_gate` (so that the IK step alone finishes the reach). With `max_joint_step` m > 0 the joint
 displacement is squashed to m tanh(delta / m), so the
 mean moves each joint less than m per control step (and the trainer clips its samples to
 the same box), as the real driver's servos move at most `velocity` x control_dt.
@@ -64,6 +65,8 @@ class ActorCritic(nn.Module):
     max_joint_step: float = 0.0
     ik_prior: str = ""
     ik_quat_index: int = -1
+    ik_gate: float = 0.0
+    ik_wrap: bool = False
 
     @nn.compact
     def __call__(
@@ -76,7 +79,7 @@ class ActorCritic(nn.Module):
         if self.ik_prior:  # the IK step toward the observed target (PPOConfig.ik_prior)
             if raw_obs is None:
                 raise ValueError("ik_prior: the network needs the raw observation")
-            ik_step = ik_prior_step(raw_obs, self.ik_quat_index)
+            ik_step = ik_prior_step(raw_obs, self.ik_quat_index, self.ik_wrap)
             obs = jnp.concatenate([obs, *(jnp.tanh(ik_step / s) for s in IK_FEATURE_SCALES)], -1)
         mean = MLP(self.hidden_sizes, self.action_size, 0.01, name="actor")(obs)
         if self.relative_actions:
@@ -94,6 +97,8 @@ class ActorCritic(nn.Module):
             else:
                 delta = mean
             if self.ik_prior == "residual":
+                if self.ik_gate > 0.0:  # near the target the IK step alone (PPOConfig.ik_gate)
+                    delta = delta * ik_gate(raw_obs, self.ik_gate)[..., None]
                 delta = delta + ik_step
             if self.max_joint_step > 0.0:  # |delta| < m per joint, smoothly (PPOConfig)
                 delta = self.max_joint_step * jnp.tanh(delta / self.max_joint_step)
@@ -110,13 +115,18 @@ IK_FEATURE_SCALES = (0.002, 0.03, 0.3)
 """rad: the IK step's joint displacement enters the networks as tanh(dq / s) at each s."""
 
 
-def ik_prior_step(raw_obs: jax.Array, quat_index: int) -> jax.Array:
+def ik_prior_step(raw_obs: jax.Array, quat_index: int, wrap_last: bool = False) -> jax.Array:
     """The bounded IK step (mara_mjx.envs.task_space.pose_step) toward the pose a MARA
     observation reports: q = obs[:6], e = obs[6:9], quat_err at quat_index (-1: none)."""
     from mara_mjx.envs.task_space import pose_step
 
     quat = raw_obs[..., quat_index : quat_index + 4] if quat_index >= 0 else None
-    return pose_step(raw_obs[..., :6], raw_obs[..., 6:9], quat)
+    return pose_step(raw_obs[..., :6], raw_obs[..., 6:9], quat, wrap_last)
+
+
+def ik_gate(raw_obs: jax.Array, scale: float) -> jax.Array:
+    """tanh(|e| / scale) of PPOConfig.ik_gate, e = obs[6:9] of a MARA observation -> (...)."""
+    return jnp.tanh(jnp.sqrt(jnp.sum(jnp.square(raw_obs[..., 6:9]), -1) + 1e-20) / scale)
 
 
 def canonical_quat(obs: jax.Array, index: int) -> jax.Array:
@@ -144,6 +154,8 @@ def make_network(config: Any, action_size: int) -> ActorCritic:
         config.max_joint_step,
         config.ik_prior,
         config.quat_index if config.ik_prior else -1,
+        config.ik_gate,
+        config.ik_wrap,
     )
 
 
