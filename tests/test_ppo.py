@@ -736,7 +736,7 @@ def test_ik_prior_residual_adds_the_ik_step_and_is_validated():
         network = make_network(config, 6)
         params = network.init(jax.random.key(3), obs[0], obs[0])
         out[prior] = forward(network, params, None, obs, config.obs_clip)
-    step = ik_prior_step(obs, 9)
+    step = ik_prior_step(obs, 9)[0]
     assert float(jnp.abs(step).max()) > 0.01
     np.testing.assert_allclose(out["residual"][0], out["features"][0] + step, atol=1e-6)
     np.testing.assert_array_equal(out["residual"][2], out["features"][2])
@@ -776,7 +776,7 @@ def test_ik_gate_fades_the_learnt_correction_to_zero_at_the_target():
         last = sorted(k for k in head if k.startswith("Dense"))[-1]
         head[last]["bias"] = head[last]["bias"] + 0.05
         outs[gate] = forward(network, params, None, batch, config.obs_clip)[0]
-    q, step = batch[:, :6], ik_prior_step(batch, 9)
+    q, step = batch[:, :6], ik_prior_step(batch, 9)[0]
     g = ik_gate(batch, 0.01)
     np.testing.assert_allclose(g[1], 0.0, atol=1e-5)
     np.testing.assert_allclose(g[2], np.tanh(0.5), rtol=1e-4)
@@ -791,6 +791,8 @@ def test_ik_gate_fades_the_learnt_correction_to_zero_at_the_target():
         PPOConfig(relative_actions=True, ik_prior="residual", ik_gate=-1.0)
     with pytest.raises(ValueError, match="ik_wrap=true changes the IK step"):
         PPOConfig(ik_wrap=True)
+    with pytest.raises(ValueError, match="ik_gate_wrap=true closes the gate"):
+        PPOConfig(relative_actions=True, ik_prior="residual", ik_wrap=True, ik_gate_wrap=True)
 
 
 def test_pose_step_wrap_takes_the_last_joint_the_long_way_past_its_limit():
@@ -803,6 +805,7 @@ def test_pose_step_wrap_takes_the_last_joint_the_long_way_past_its_limit():
         last_joint_range,
         nominal_chain,
         pose_step,
+        pose_step_wrapping,
         rotation_vector,
     )
 
@@ -833,6 +836,16 @@ def test_pose_step_wrap_takes_the_last_joint_the_long_way_past_its_limit():
     plain, wrapped = pose_step(blocked, e, r, False), pose_step(blocked, e, r, True)
     assert float(plain[5]) < 0.0 < float(wrapped[5])
     q_plain, q_wrap = run(blocked, False), run(blocked, True)
+    # on the way round the other joints hold the TCP's position and the tool axis
+    q, worst = blocked.at[:5].add(0.002), 0.0
+    for _ in range(30):
+        e, r = error(q)
+        dq, wrapping = pose_step_wrapping(q, e, r, True)
+        if not bool(wrapping):
+            break
+        q = jnp.clip(q + dq, lo6, hi6)
+        worst = max(worst, float(jnp.linalg.norm(error(q)[0])))
+    assert 0.5 < float(q[5] - blocked[5]) and worst < 2e-3
     assert float(jnp.linalg.norm(rotation_vector(error(q_plain)[1]))) > 0.05
     assert float(jnp.linalg.norm(rotation_vector(error(q_wrap)[1]))) < 1e-3
     np.testing.assert_allclose(q_wrap, goal, atol=1e-3)
@@ -841,6 +854,59 @@ def test_pose_step_wrap_takes_the_last_joint_the_long_way_past_its_limit():
     e, r = error(far)
     assert float(jnp.linalg.norm(e)) > 0.02
     np.testing.assert_allclose(pose_step(far, e, r, True), pose_step(far, e, r, False))
+    # pose_step_wrapping flags the long way round, and only it
+    flags = [
+        bool(pose_step_wrapping(x, *error(x), wrap)[1])
+        for x, wrap in ((near, True), (blocked, True), (blocked, False), (far, True))
+    ]
+    assert flags == [False, True, False, False]
+
+
+def test_ik_gate_wrap_leaves_the_ik_step_alone_while_it_takes_the_long_way():
+    """ik_gate_wrap: where the IK step turns the last joint the long way round, the mean
+    is q + the IK step exactly (the gate closed), elsewhere the gated residual."""
+    import mara_mjx
+    from mara_mjx.envs.geometry import quat_conj, quat_mul
+    from mara_mjx.envs.task_space import last_joint_range, nominal_chain
+    from mara_mjx.ppo.config import for_env
+    from mara_mjx.ppo.networks import ik_gate, ik_prior_step
+
+    env = mara_mjx.make("MARACollisionOrient")
+    chain, (lo6, hi6) = nominal_chain(), last_joint_range()
+    goal = jnp.array([0.4, -0.5, 0.9, 0.1, 1.2, hi6 - 0.1])
+    tpos, tquat = chain.tcp(goal)
+    rows = []
+    for q in (goal.at[5].set(lo6 + 0.2), goal.at[5].add(-0.3)):  # blocked, free
+        pos, quat = chain.tcp(q)
+        obs = env.reset(jax.random.key(0)).obs.at[:6].set(q)
+        obs = obs.at[6:9].set(pos - tpos + jnp.array([0.004, 0.0, 0.0]))
+        rows.append(obs.at[9:13].set(quat_mul(quat, quat_conj(tquat))))
+    batch = jnp.stack(rows)
+    step, wrapping = ik_prior_step(batch, 9, True)
+    assert wrapping.tolist() == [True, False]
+    outs = {}
+    for gate_wrap in (False, True):
+        config = for_env(
+            PPOConfig(
+                relative_actions=True,
+                ik_prior="residual",
+                ik_gate=0.01,
+                ik_wrap=True,
+                ik_gate_wrap=gate_wrap,
+            ),
+            env,
+        )
+        network = make_network(config, 6)
+        params = network.init(jax.random.key(3), batch[0], batch[0])
+        head = params["params"]["actor"]
+        last = sorted(k for k in head if k.startswith("Dense"))[-1]
+        head[last]["bias"] = head[last]["bias"] + 0.05
+        outs[gate_wrap] = forward(network, params, None, batch, config.obs_clip)[0]
+    q, g = batch[:, :6], ik_gate(batch, 0.01)
+    assert float(g[0]) > 0.3
+    assert float(jnp.abs(outs[False][0] - q[0] - step[0]).min()) > 0.005  # gated residual
+    np.testing.assert_allclose(outs[True][0], q[0] + step[0], atol=1e-6)  # the IK step alone
+    np.testing.assert_allclose(outs[True][1], outs[False][1], atol=1e-6)  # not wrapping
 
 
 def test_train_limit_penalty_is_zero_inside_the_soft_range_and_one_at_a_limit():

@@ -79,7 +79,7 @@ def nominal_chain() -> Chain:
 
 
 def dls_step(jac: jax.Array, dx: jax.Array, damping: float = DAMPING) -> jax.Array:
-    """jac (6, 6), dx (6,) -> dq = J^T (J J^T + damping^2 I)^-1 dx (6,)."""
+    """jac (m, n), dx (m,) -> dq = J^T (J J^T + damping^2 I)^-1 dx (n,)."""
     gram = jac @ jac.T + (damping**2) * jnp.eye(jac.shape[0], dtype=jac.dtype)
     return jac.T @ jnp.linalg.solve(gram, dx)
 
@@ -130,15 +130,25 @@ def pose_step(
     orientation and wrap_last, within WRAP_NEAR of the target, where the full Newton step
     would take the last joint past its limit and
     that joint spans a full turn, it moves the other way (toward the same angle less or
-    plus 2 pi, at most MAX_STEP_JOINT per step): a local step would stop at the limit
-    with the tool's roll off. No gradient flows through it."""
+    plus 2 pi, at most MAX_STEP_JOINT per step; the TCP lies on that joint's axis, so the
+    turn only rolls the tool and the other joints' step still holds the position and
+    the tool axis): a local step would stop at the limit with the tool's roll off. No
+    gradient flows through it."""
+    return pose_step_wrapping(q, e, quat_err, wrap_last)[0]
+
+
+def pose_step_wrapping(
+    q: jax.Array, e: jax.Array, quat_err: jax.Array | None = None, wrap_last: bool = False
+) -> tuple[jax.Array, jax.Array]:
+    """pose_step's dq (..., 6) and whether it takes the last joint the long way round
+    (..., bool: always False without quat_err and wrap_last)."""
     chain = nominal_chain()
     lo6, hi6 = last_joint_range()
     wrap = wrap_last and hi6 - lo6 >= 2 * jnp.pi - 0.01
     q, e = jax.lax.stop_gradient(q), jax.lax.stop_gradient(e)
     rot = None if quat_err is None else jax.lax.stop_gradient(quat_err)
 
-    def one(q1: jax.Array, e1: jax.Array, *r: jax.Array) -> jax.Array:
+    def one(q1: jax.Array, e1: jax.Array, *r: jax.Array) -> tuple[jax.Array, jax.Array]:
         jac = chain.jacobian(q1)
         dx = _clip_norm(-e1, MAX_POSITION_STEP)
         if r:
@@ -146,6 +156,7 @@ def pose_step(
         else:
             jac = jac[:3]
         dq = dls_step(jac, dx)
+        use = jnp.zeros((), bool)
         if r and wrap:  # the last joint the long way round where the short way is blocked
             full = dls_step(jac, jnp.concatenate([-e1, -rotation_vector(r[0])]))
             goal = q1[5] + full[5]
@@ -156,8 +167,8 @@ def pose_step(
             long_way = jnp.clip(other - q1[5], -MAX_STEP_JOINT, MAX_STEP_JOINT)
             dq = dq.at[5].set(jnp.where(use, long_way, dq[5]))
         big = jnp.max(jnp.abs(dq))
-        return dq * jnp.minimum(1.0, MAX_STEP_JOINT / jnp.maximum(big, 1e-12))
+        return dq * jnp.minimum(1.0, MAX_STEP_JOINT / jnp.maximum(big, 1e-12)), use
 
     if rot is None:
-        return jnp.vectorize(one, signature="(6),(3)->(6)")(q, e)
-    return jnp.vectorize(one, signature="(6),(3),(4)->(6)")(q, e, rot)
+        return jnp.vectorize(one, signature="(6),(3)->(6),()")(q, e)
+    return jnp.vectorize(one, signature="(6),(3),(4)->(6),()")(q, e, rot)

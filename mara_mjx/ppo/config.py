@@ -126,6 +126,11 @@ class PPOConfig(_ConfigMixin):
     range) the long way round where, within 2 cm of the target, the short way would end
     past its limit (envs/task_space.pose_step wrap_last): the same tool pose, which a
     local step would otherwise never reach (benchmarks/NOTES.md section 24)."""
+    ik_gate_wrap: bool = False
+    """With ik_gate and ik_wrap: the gate is also closed (the IK step alone) while the IK
+    step turns the last joint the long way round, a manoeuvre of up to 2 pi over tens of
+    steps that a correction learnt mostly elsewhere otherwise undoes halfway (a limit
+    cycle measured in benchmarks/NOTES.md section 24)."""
     hidden_obs: tuple[int, ...] = ()
     """Observation indices that neither network sees (set to 0 after normalisation), e.g.
     9 10 11 for the TCP velocity of MARA/MARACollision (13 14 15 for the Orient tasks)."""
@@ -306,6 +311,12 @@ class PPOConfig(_ConfigMixin):
             raise ValueError(
                 f"ik_gate={self.ik_gate} gates the correction of ik_prior='residual', but "
                 f"ik_prior={self.ik_prior!r}; set ik_prior='residual', or ik_gate=0"
+            )
+        if self.ik_gate_wrap and not (self.ik_gate > 0.0 and self.ik_wrap):
+            raise ValueError(
+                f"ik_gate_wrap=true closes the gate of ik_gate while ik_wrap turns the last "
+                f"joint, but ik_gate={self.ik_gate}, ik_wrap={self.ik_wrap}; set both "
+                f"(ik_gate > 0, ik_wrap=true), or ik_gate_wrap=false"
             )
         if self.ik_wrap and not self.ik_prior:
             raise ValueError(

@@ -67,6 +67,7 @@ class ActorCritic(nn.Module):
     ik_quat_index: int = -1
     ik_gate: float = 0.0
     ik_wrap: bool = False
+    ik_gate_wrap: bool = False
 
     @nn.compact
     def __call__(
@@ -79,7 +80,7 @@ class ActorCritic(nn.Module):
         if self.ik_prior:  # the IK step toward the observed target (PPOConfig.ik_prior)
             if raw_obs is None:
                 raise ValueError("ik_prior: the network needs the raw observation")
-            ik_step = ik_prior_step(raw_obs, self.ik_quat_index, self.ik_wrap)
+            ik_step, wrapping = ik_prior_step(raw_obs, self.ik_quat_index, self.ik_wrap)
             obs = jnp.concatenate([obs, *(jnp.tanh(ik_step / s) for s in IK_FEATURE_SCALES)], -1)
         mean = MLP(self.hidden_sizes, self.action_size, 0.01, name="actor")(obs)
         if self.relative_actions:
@@ -98,7 +99,10 @@ class ActorCritic(nn.Module):
                 delta = mean
             if self.ik_prior == "residual":
                 if self.ik_gate > 0.0:  # near the target the IK step alone (PPOConfig.ik_gate)
-                    delta = delta * ik_gate(raw_obs, self.ik_gate)[..., None]
+                    gate = ik_gate(raw_obs, self.ik_gate)
+                    if self.ik_gate_wrap:  # and while it turns the flange the long way
+                        gate = jnp.where(wrapping, 0.0, gate)
+                    delta = delta * gate[..., None]
                 delta = delta + ik_step
             if self.max_joint_step > 0.0:  # |delta| < m per joint, smoothly (PPOConfig)
                 delta = self.max_joint_step * jnp.tanh(delta / self.max_joint_step)
@@ -115,13 +119,16 @@ IK_FEATURE_SCALES = (0.002, 0.03, 0.3)
 """rad: the IK step's joint displacement enters the networks as tanh(dq / s) at each s."""
 
 
-def ik_prior_step(raw_obs: jax.Array, quat_index: int, wrap_last: bool = False) -> jax.Array:
+def ik_prior_step(
+    raw_obs: jax.Array, quat_index: int, wrap_last: bool = False
+) -> tuple[jax.Array, jax.Array]:
     """The bounded IK step (mara_mjx.envs.task_space.pose_step) toward the pose a MARA
-    observation reports: q = obs[:6], e = obs[6:9], quat_err at quat_index (-1: none)."""
-    from mara_mjx.envs.task_space import pose_step
+    observation reports: q = obs[:6], e = obs[6:9], quat_err at quat_index (-1: none) ->
+    (dq (..., 6), whether it takes the last joint the long way round (...))."""
+    from mara_mjx.envs.task_space import pose_step_wrapping
 
     quat = raw_obs[..., quat_index : quat_index + 4] if quat_index >= 0 else None
-    return pose_step(raw_obs[..., :6], raw_obs[..., 6:9], quat, wrap_last)
+    return pose_step_wrapping(raw_obs[..., :6], raw_obs[..., 6:9], quat, wrap_last)
 
 
 def ik_gate(raw_obs: jax.Array, scale: float) -> jax.Array:
@@ -156,6 +163,7 @@ def make_network(config: Any, action_size: int) -> ActorCritic:
         config.quat_index if config.ik_prior else -1,
         config.ik_gate,
         config.ik_wrap,
+        config.ik_gate_wrap,
     )
 
 
