@@ -456,12 +456,19 @@ def test_population_run_trains_checkpoints_and_evaluates(users_env, tmp_path):
 
 def test_the_preset_follows_the_task_unless_one_is_given():
     """A *RandomTarget env trains with the 'random_target' preset (staggered first
-    episodes), the fixed-target tasks with 'default'; --preset and flags win. No compile."""
+    episodes), an *OrientRandomTarget one with 'random_target_orient' (plus the IK
+    residual recipe), the fixed-target tasks with 'default'; --preset and flags win. No
+    compile."""
 
     def ppo(*argv):
         return train_cli.resolve(train_cli.build_parser().parse_args([*argv, "--out", "x"])).ppo
 
-    assert ppo("--env", "MARACollisionOrientRandomTarget").stagger_episodes is True
+    assert ppo("--env", "MARACollisionRandomTarget").stagger_episodes is True
+    orient = ppo("--env", "MARACollisionOrientRandomTarget")
+    assert orient.stagger_episodes is True and orient.ik_prior == "residual"
+    assert orient.ik_gate > 0 and orient.ik_wrap and orient.ik_gate_wrap
+    assert ppo("--env", "MARACollisionRandomTarget").ik_prior == ""
+    assert ppo("--env", "MARAOrientRandomTarget", "--ik_gate", "0.05").ik_gate == 0.05
     assert ppo("--env", "MARACollisionOrient").stagger_episodes is False
     assert ppo("--env", "MARARandomTarget", "--preset", "default").stagger_episodes is False
     flagged = ppo("--env", "MARARandomTarget", "--stagger_episodes", "false")
