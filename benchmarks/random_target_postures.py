@@ -10,12 +10,13 @@ fraction of final poses within 0.02 rad of a limit (all poses, those over 10 deg
 rest), with the mean and spread of the final joints.
 
     python benchmarks/random_target_postures.py DIR/MARACollisionOrientRandomTarget_default \
-        --seeds 0 1 2 3 4 [--ik-finish 100]
+        --seeds 0 1 2 3 4 [--ik-finish 100] [--set 'ik_gate=0.1']
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import pickle
 from pathlib import Path
 
@@ -48,6 +49,12 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument(
         "--wrap", action="store_true", help="the finishing IK step with wrap_last (pose_step)"
     )
+    p.add_argument(
+        "--set",
+        default="",
+        help="'key=value;...' PPOConfig overrides applied at inference (JSON values), e.g. "
+        "'ik_gate=0.1': a policy run with settings other than those it was trained with",
+    )
     args = p.parse_args(argv)
 
     env = mara_mjx.make(args.task)
@@ -60,6 +67,9 @@ def main(argv: list[str] | None = None) -> None:
         with open(args.folder / f"seed{seed}.pkl", "rb") as f:
             net_params, stats, cfg = pickle.load(f)
         cfg = {k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}
+        for part in filter(None, args.set.split(";")):
+            key, value = part.split("=", 1)
+            cfg[key] = json.loads(value)
         policy = make_policy(net_params, PPOConfig(**cfg), stats)
 
         @jax.jit
