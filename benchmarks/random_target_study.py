@@ -19,6 +19,7 @@ variant.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import pickle
 import sys
@@ -91,7 +92,8 @@ def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
         real_params = target_eval.with_targets(
             real_env.make_params(reset_noise=ev_config.noise), poses.pos, poses.quat
         )
-        real_fn = make_evaluate(real_env, ev_config, real_params)
+        real_config = dataclasses.replace(ev_config, rate_limit=args.real_rate_limit)
+        real_fn = make_evaluate(real_env, real_config, real_params)
     per_seed = []
     for i, s in enumerate(seeds):
         seed_state = take_seed(state, i)
@@ -110,11 +112,15 @@ def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
         tres = target_eval.TargetEvalResult(res, poses.pos, poses.quat, 1000 * gaps.min(1))
         summary = tres.summary(env.task.orientation)
         if args.real_velocity:  # the same policy and poses on the servo-driven real driver
-            rres = evaluate(real_env, policy, ev_config, real_params, fn=real_fn)
+            rres = evaluate(real_env, policy, real_config, real_params, fn=real_fn)
             rsum = target_eval.TargetEvalResult(
                 rres, poses.pos, poses.quat, tres.nearest_training_mm
             ).summary(env.task.orientation)
-            summary["real_driver"] = {"velocity": args.real_velocity, **rsum}
+            summary["real_driver"] = {
+                "velocity": args.real_velocity,
+                "rate_limit": args.real_rate_limit,
+                **rsum,
+            }
         summary["time_to_5mm_s"] = first.get((5.0, s))
         summary["time_to_1mm_s"] = first.get((1.0, s))
         per_seed.append({"seed": s, **summary})
@@ -174,6 +180,12 @@ def main():
         default=0.0,
         help="also evaluate every policy on the real driver at this servo speed (rad/s)",
     )
+    p.add_argument(
+        "--real-rate-limit",
+        action="store_true",
+        help="the real-driver evaluation with EvalConfig.rate_limit (the policy's steps "
+        "scaled to the servo speed, direction kept)",
+    )
     p.add_argument("--out", default="random_target_study.json")
     p.add_argument(
         "--save-params",
@@ -181,6 +193,8 @@ def main():
         help="folder: each seed's (params, obs_stats, config dict) pickled, for offline analysis",
     )
     args = p.parse_args()
+    if args.real_rate_limit and not args.real_velocity:
+        p.error("--real-rate-limit applies to the real-driver evaluation: add --real-velocity")
     run_studies(
         study, args, "random_target_study.py", mara_mjx=getattr(mara_mjx, "__version__", None)
     )

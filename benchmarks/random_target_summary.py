@@ -26,15 +26,29 @@ def _fmt(v) -> str:
 
 
 def load(paths: list[Path]) -> dict[tuple[str, str], dict]:
-    """(task, variant) -> {"commands", "device", "seeds": [per-seed summary], "train_s"}."""
+    """(task, variant) -> {"commands", "device", "seeds": [per-seed summary], "train_s"};
+    results merge only where their PPO config, env overrides and device agree, and no
+    seed repeats (SystemExit naming the files otherwise)."""
     groups: dict[tuple[str, str], dict] = {}
     for path in paths:
         data = json.loads(path.read_text())
         for r in data["results"]:
+            key = (r["task"], r["variant"])
+            same = json.dumps([r["config"], r["env_overrides"], data["device"]], sort_keys=True)
             g = groups.setdefault(
-                (r["task"], r["variant"]),
-                {"commands": [], "device": data["device"], "seeds": [], "train_s": []},
+                key,
+                {
+                    "commands": [],
+                    "device": data["device"],
+                    "seeds": [],
+                    "train_s": [],
+                    "same": same,
+                },
             )
+            if g["same"] != same:
+                raise SystemExit(f"{path}: {key} differs in config, env or device from before")
+            if {s["seed"] for s in g["seeds"]} & {s["seed"] for s in r["per_seed"]}:
+                raise SystemExit(f"{path}: {key} repeats a seed of an earlier file")
             g["commands"].append(data["command"])
             g["seeds"].extend(r["per_seed"])
             g["train_s"].append(r["train_s"])

@@ -181,6 +181,16 @@ def reproducible_gpu_flags(real_driver: bool) -> str:
     return "--xla_gpu_autotune_level=0"
 
 
+def check_rate_limit(evaluation: Any, driver: str) -> None:
+    """UserError when EvalConfig.rate_limit is asked for an env that is not on the real
+    driver (the servo speed it limits the policy's steps to)."""
+    if getattr(evaluation, "rate_limit", False) and driver != "real":
+        raise UserError(
+            f"--rate_limit true limits the policy's steps to the real driver's servo speed, "
+            f"but the env's driver is {driver!r}; add --driver real, or drop --rate_limit"
+        )
+
+
 def uses_real_driver(namespace: argparse.Namespace, checkpoint: str | None = None) -> bool:
     """Whether a CLI run may step the real driver: its `--driver` flag, else the driver of
     `checkpoint`'s env (a file or run folder; True when it cannot be read: the error is

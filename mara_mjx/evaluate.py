@@ -39,6 +39,7 @@ from mara_mjx.cli import (
     add_cache_argument,
     add_checkpoint_argument,
     add_flags,
+    check_rate_limit,
     configure_jax,
     env_overrides,
     overrides,
@@ -92,6 +93,8 @@ def main(argv: list[str] | None = None) -> int:
         config = EvalConfig().replace(**overrides(args, "eval"))
     except ValueError as e:
         raise UserError(f"invalid eval config: {e}") from e
+    if config.rate_limit and not uses_real_driver(args, args.checkpoint):
+        check_rate_limit(config, "train")
     if group is not None:
         top = Path(args.checkpoint)
         return seeds.evaluate_run(top, group, config, env_overrides(args), args.json)

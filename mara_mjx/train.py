@@ -64,6 +64,7 @@ from mara_mjx.cli import (
     UserError,
     add_cache_argument,
     add_flags,
+    check_rate_limit,
     configure_jax,
     env_overrides,
     overrides,
@@ -121,8 +122,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="PPO preset: 'default' (thousands of envs on one GPU), 'paper' (the paper's "
         "baselines ppo2 run: 1 env, 2048 steps, 1e8 steps), 'ros2learn' (2 x 16 nets, "
         "exponential lr), 'cpu' (256 envs x 16 steps, 3e6 steps: a laptop CPU), "
-        "'random_target' (default with staggered first episodes); flags override its "
-        "fields (default: random_target for a *RandomTarget env, else default)",
+        "'random_target' (default with staggered first episodes), 'random_target_orient' "
+        "(random_target plus the joint-limit curriculum and the gated IK residual); flags "
+        "override its fields (default: random_target_orient for an *OrientRandomTarget "
+        "env, random_target for the other *RandomTarget envs, else default)",
     )
     parser.add_argument(
         "--resume",
@@ -147,6 +150,7 @@ def resolve(args: argparse.Namespace) -> Plan:
         ppo = _build("PPO config", lambda: preset.replace(**given["ppo"]))
         run = _build("run config", lambda: RunConfig().replace(**given["run"]))
         evaluation = _build("eval config", lambda: EvalConfig().replace(**given["eval"]))
+        check_rate_limit(evaluation, env_overrides(args).get("driver", "train"))
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
         out = Path(run.out or f"runs/{args.env}-{stamp}")
         return Plan(args.env, env_overrides(args), ppo, run, evaluation, out)
@@ -174,6 +178,7 @@ def resolve(args: argparse.Namespace) -> Plan:
     out = Path(given["run"]["out"]) if given["run"].get("out") else source
     run = run.replace(out=str(out))
     env_flags = runs.env_overrides(meta["env_config"])
+    check_rate_limit(evaluation, meta["env_config"].get("driver", "train"))
     return Plan(meta["env_name"], env_flags, ppo, run, evaluation, out, checkpoint, source)
 
 

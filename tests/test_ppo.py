@@ -922,3 +922,59 @@ def test_train_limit_penalty_is_zero_inside_the_soft_range_and_one_at_a_limit():
         PPOConfig(train_limit_penalty=-1.0)
     with pytest.raises(ValueError, match="train_limit_soft"):
         PPOConfig(train_limit_soft=1.0)
+
+
+def test_rate_limited_keeps_the_direction_and_bounds_every_joint_step():
+    """policy.rate_limited(p, m, lo, hi): the target clipped to [lo, hi], then q + d x
+    min(1, m / max|d|): the largest joint step is m, the others in proportion (the same
+    direction in joint space), small steps untouched, a joint pushing past its limit
+    does not slow the others, a non-finite target stays in its own entry; a pytree
+    through jit; bad m refused."""
+    from mara_mjx.ppo.policy import rate_limited
+
+    step = jnp.array([0.6, -0.3, 0.15, 0.0, 0.001, -0.06])
+    base = jax.tree_util.Partial(lambda obs: obs[..., :6] + step)
+    obs = jnp.zeros((2, 20)).at[1, :6].set(jnp.array([0.3, -0.2, 0.1, 0.5, -0.4, 0.2]))
+    limited = jax.jit(lambda p, o: p(o))(rate_limited(base, 0.015), obs)
+    moved = limited - obs[:, :6]
+    np.testing.assert_allclose(np.abs(moved).max(-1), [0.015, 0.015], rtol=1e-6)
+    np.testing.assert_allclose(moved, np.broadcast_to(step * 0.015 / 0.6, (2, 6)), atol=1e-7)
+    small = rate_limited(base, 1.0)(obs)
+    np.testing.assert_allclose(small - obs[:, :6], np.broadcast_to(step, (2, 6)), atol=1e-6)
+    # joint 4 at its upper limit asks 0.5 further: clipped away, joint 1 keeps full speed
+    lo, hi = -jnp.full(6, 3.14), jnp.full(6, 3.14)
+    q = jnp.zeros(20).at[3].set(3.14)
+    pushing = jax.tree_util.Partial(lambda o: o[..., :6] + jnp.array([0.2, 0, 0, 0.5, 0, 0]))
+    out = rate_limited(pushing, 0.015, lo, hi)(q) - q[:6]
+    np.testing.assert_allclose(out, [0.015, 0, 0, 0, 0, 0], atol=1e-7)
+    nan = jax.tree_util.Partial(lambda o: o[..., :6] + jnp.array([0.3, jnp.nan, 0, 0, 0, 0]))
+    out = rate_limited(nan, 0.015)(jnp.zeros(20))
+    assert np.isnan(out[1]) and float(out[0]) == pytest.approx(0.015)
+    with pytest.raises(ValueError, match="max_step=0.0 must be > 0"):
+        rate_limited(base, 0.0)
+
+
+def test_evaluation_rate_limit_uses_the_servo_travel_and_needs_the_real_driver(monkeypatch):
+    """EvalConfig.rate_limit: the evaluation wraps the policy in rate_limited with the
+    servos' travel per step (velocity x substeps x timestep, per episode) and the joint
+    limits; on the train driver it is refused with the reason. Traced, not compiled."""
+    import mara_mjx
+    from mara_mjx.ppo import evaluation
+    from mara_mjx.ppo.config import EvalConfig
+
+    with pytest.raises(ValueError, match="rate_limit=true .* driver is 'train'"):
+        evaluation.make_evaluate(mara_mjx.make("MARA"), EvalConfig(rate_limit=True))
+    seen = {}
+    real = evaluation.rate_limited
+
+    def spy(policy, max_step, lower, upper):
+        seen.update(max_step=max_step, lower=lower)
+        return real(policy, max_step, lower, upper)
+
+    monkeypatch.setattr(evaluation, "rate_limited", spy)
+    env = mara_mjx.make("MARA", driver="real", velocity=0.3)
+    fn = evaluation.make_evaluate(env, EvalConfig(episodes=2, rate_limit=True))
+    base = jax.tree_util.Partial(lambda obs: obs[..., :6] + 0.1)
+    jax.eval_shape(fn, base)
+    np.testing.assert_allclose(np.asarray(seen["max_step"]), [[0.015], [0.015]], rtol=1e-5)
+    np.testing.assert_allclose(seen["lower"], env.joint_lower)

@@ -360,6 +360,16 @@ def test_evaluate_cli_on_a_random_target_run(run_dir, tmp_path):
     assert all(e["steps"] == 4 for e in report["episodes"])
 
 
+def test_evaluate_cli_refuses_rate_limit_on_the_train_driver(run_dir):
+    """--rate_limit on a train-driver run without --driver real: a UserError naming the
+    fix, before anything compiles."""
+    from mara_mjx import evaluate as evaluate_cli
+    from mara_mjx.cli import UserError
+
+    with pytest.raises(UserError, match="add --driver real, or drop --rate_limit"):
+        evaluate_cli.main([str(run_dir), "--rate_limit", "true"])
+
+
 def test_play_shows_each_episode_target(run_dir):
     from mara_mjx import play
     from mara_mjx.ppo.config import EvalConfig

@@ -474,3 +474,15 @@ def test_the_preset_follows_the_task_unless_one_is_given():
     flagged = ppo("--env", "MARARandomTarget", "--stagger_episodes", "false")
     assert flagged.stagger_episodes is False
     assert flagged.replace(stagger_episodes=True) == ppo("--env", "MARARandomTarget")
+
+
+def test_rate_limit_without_the_real_driver_is_a_clear_error():
+    """--rate_limit true limits steps to the real driver's servo speed: refused (UserError
+    naming the fix) on the train driver, accepted with --driver real. No compile."""
+
+    def plan(*argv):
+        return train_cli.resolve(train_cli.build_parser().parse_args([*argv, "--out", "x"]))
+
+    with pytest.raises(train_cli.UserError, match="add --driver real, or drop --rate_limit"):
+        plan("--env", "MARA", "--rate_limit", "true")
+    assert plan("--env", "MARA", "--rate_limit", "true", "--driver", "real").eval.rate_limit

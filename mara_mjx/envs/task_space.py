@@ -29,9 +29,10 @@ as the base its output corrects (PPOConfig.ik_prior, residual-policy learning):
 
     dq = pose_step(q, e, quat_err)          # (..., 6) rad, bounded
 
-The last joint (the tool flange's roll, range a full turn) is taken the long way round
-where the short way would end past its limit: the same tool pose, 2 pi of that joint
-away, as a local step would otherwise stop at the limit (benchmarks/NOTES.md section 24).
+With wrap_last (and an orientation), the last joint (the tool flange's roll, range a
+full turn) is taken the long way round where the short way would end past its limit: the
+same tool pose, 2 pi of that joint away, as a local step would otherwise stop at the
+limit (benchmarks/NOTES.md section 24).
 """
 
 from __future__ import annotations

@@ -117,8 +117,9 @@ class PPOConfig(_ConfigMixin):
     '': off."""
     ik_gate: float = 0.0
     """m, with ik_prior='residual', > 0: the actor's learnt correction is multiplied by
-    tanh(|e| / s) (s this value, e the observed TCP position error), so within about s of
-    the target position the IK step alone moves the arm: a Newton step of the whole pose,
+    tanh(|e| / s) (s this value, e the observed TCP position error: 0.76 at |e| = s,
+    0.1 at s / 10), so as the TCP closes on the target position the IK step alone moves
+    the arm: a Newton step of the whole pose,
     whose error falls to 0 from the branch the policy has taken, instead of settling
     where the correction's own bias balances it (benchmarks/NOTES.md section 24). Far
     from the target the residual is unchanged. 0: off."""
@@ -400,7 +401,7 @@ def for_env(config: PPOConfig, env: Any) -> PPOConfig:
     `observation_layout` (a list of {name, start, stop, ...}; -1 where it has no
     quat_err), `train_reward` and `train_collision_penalty` cleared for an env whose
     params have no `reward`, `train_reset_noise` for one without `reset_noise`, and
-    `orientation_bonus` for one without quat_err."""
+    `orientation_bonus`, `ik_wrap` and `ik_gate_wrap` for one without quat_err."""
     layout = getattr(env, "observation_layout", None) or []
     starts = [int(part["start"]) for part in layout if part.get("name") == "quat_err"]
     index = starts[0] if ((config.canonical_quat or config.ik_prior) and starts) else -1
@@ -421,6 +422,8 @@ def for_env(config: PPOConfig, env: Any) -> PPOConfig:
         resolved = resolved.replace(train_reset_noise=0.0)
     if not starts and resolved.orientation_bonus > 0.0:  # no orientation in the task
         resolved = resolved.replace(orientation_bonus=0.0)
+    if not starts and resolved.ik_wrap:  # no tool roll to wrap in a position-only task
+        resolved = resolved.replace(ik_wrap=False, ik_gate_wrap=False)
     return resolved
 
 
@@ -487,6 +490,16 @@ class EvalConfig(_ConfigMixin):
     """Stop condition: every axis of |e| within this (mm); 0 runs to the horizon."""
     seed: int = 0
     """Seed of the episodes' reset keys."""
+    rate_limit: bool = False
+    """Real driver only: each action (clipped to the joint limits) is moved toward the
+    observed joints, the whole joint displacement scaled by one factor, so that no joint
+    is asked for more than the servos travel in one step, velocity x control_dt
+    (mara_mjx.ppo.policy.rate_limited): the servos then follow the policy's direction in
+    joint space instead of each saturating on its own, which turns a large step into a
+    diagonal through joint space (benchmarks/NOTES.md section 25). The servos' reference
+    starts from where they were commanded, not from the observed joints, so a lagging arm
+    follows the direction only approximately. A deployment-side output stage of the
+    policy, as a robot's trajectory scaling would be; the env is unchanged."""
 
     def __post_init__(self):
         _check_int("episodes", self.episodes, minimum=1)

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mara_mjx.ppo.config import EvalConfig
-from mara_mjx.ppo.policy import Policy
+from mara_mjx.ppo.policy import Policy, rate_limited
 
 # Spec section 7: mean and std over 10 runs, per axis; mm and degrees.
 PAPER_RESULTS: dict[str, dict[str, tuple[tuple[float, float], ...]]] = {
@@ -130,7 +130,22 @@ def make_evaluate(
     reset = jax.vmap(env.reset, in_axes=(0, 0 if per_episode else None))
     step = jax.vmap(env.step)
 
+    if config.rate_limit:
+        driver = getattr(env.config, "driver", "train")
+        if driver != "real":
+            raise ValueError(
+                f"rate_limit=true limits the policy's steps to the real driver's servo speed, "
+                f"but the env's driver is {driver!r}; use driver='real' or rate_limit=false"
+            )
+        # the servos' travel per control step: velocity (per episode where params carry
+        # one each) x the physics substeps of one step
+        step_s = env.n_substeps * env.arm.timestep
+        velocity = jnp.asarray(params.velocity, jnp.float32)
+        max_step = (velocity * step_s)[..., None] if velocity.ndim else velocity * step_s
+
     def evaluate(policy: Policy) -> dict[str, jax.Array]:
+        if config.rate_limit:
+            policy = rate_limited(policy, max_step, env.joint_lower, env.joint_upper)
         state = reset(keys, params)
 
         def running(carry) -> jax.Array:

@@ -56,6 +56,37 @@ class Policy:
         return mean, log_std
 
 
+def rate_limited(policy: Any, max_step: Any, lower: Any = None, upper: Any = None) -> Any:
+    """`policy` whose joint targets, clipped to [lower, upper] when given (as the env
+    clips them), are moved toward the observed joints (obs[..., :A], the MARA
+    observation's q), the whole displacement scaled by one factor, so that no joint is
+    asked to move more than `max_step` rad (a float, or an array broadcasting against
+    the batch, e.g. (E, 1) per episode): the direction in joint space is kept, where a
+    servo-driven arm moving each joint at its own top speed would follow
+    sign(displacement) instead. Non-finite targets pass through unchanged (the env
+    counts and replaces them) and do not enter the scale. A pytree like `policy`
+    (jax.tree_util.Partial)."""
+    if isinstance(max_step, int | float) and not max_step > 0:
+        raise ValueError(f"rate_limited: max_step={max_step!r} must be > 0 (rad per step)")
+    bounds = None if lower is None else (jnp.asarray(lower), jnp.asarray(upper))
+    return jax.tree_util.Partial(
+        _rate_limited_call, policy, jnp.asarray(max_step, jnp.float32), bounds
+    )
+
+
+def _rate_limited_call(policy: Any, max_step: jax.Array, bounds: Any, obs: jax.Array):
+    action = policy(obs)
+    q = obs[..., : action.shape[-1]]
+    finite = jnp.isfinite(action)
+    target = jnp.where(finite, action, q)
+    if bounds is not None:
+        target = jnp.clip(target, bounds[0], bounds[1])
+    delta = target - q
+    big = jnp.max(jnp.abs(delta), axis=-1, keepdims=True)
+    limited = q + delta * jnp.minimum(1.0, max_step / jnp.maximum(big, 1e-12))
+    return jnp.where(finite, limited, action)
+
+
 def make_policy(
     checkpoint_or_params: Any,
     config: PPOConfig | None = None,
