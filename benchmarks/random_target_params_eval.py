@@ -62,7 +62,26 @@ def main(argv: list[str] | None = None) -> None:
     fn = make_evaluate(env, ev_config, params)
     train = env.pose_table().pos
     gaps = ((poses.pos[:, None, :] - train[None, :, :]) ** 2).sum(-1) ** 0.5
+    command = "python benchmarks/random_target_params_eval.py " + " ".join(sys.argv[1:])
     out = []
+
+    def write() -> None:  # after every seed: a cut-off run keeps what it measured
+        args.out.write_text(
+            json.dumps(
+                {
+                    "command": command,
+                    "device": str(jax.devices()[0]),
+                    "jax": jax.__version__,
+                    "task": args.task,
+                    "driver": args.driver,
+                    "velocity": args.velocity if args.driver == "real" else None,
+                    "rate_limit": args.rate_limit,
+                    "folder": str(args.folder),
+                    "results": out,
+                }
+            )
+        )
+
     for seed in args.seeds:
         t0 = time.monotonic()
         with open(args.folder / f"seed{seed}.pkl", "rb") as f:
@@ -81,22 +100,7 @@ def main(argv: list[str] | None = None) -> None:
             f"episodes with collisions {summary['episodes_with_collisions']}",
             flush=True,
         )
-    args.out.write_text(
-        json.dumps(
-            {
-                "command": "python benchmarks/random_target_params_eval.py "
-                + " ".join(sys.argv[1:]),
-                "device": str(jax.devices()[0]),
-                "jax": jax.__version__,
-                "task": args.task,
-                "driver": args.driver,
-                "velocity": args.velocity if args.driver == "real" else None,
-                "rate_limit": args.rate_limit,
-                "folder": str(args.folder),
-                "results": out,
-            }
-        )
-    )
+        write()
 
 
 if __name__ == "__main__":
