@@ -753,6 +753,17 @@ def test_ik_prior_residual_adds_the_ik_step_and_is_validated():
         for_env(PPOConfig(ik_prior="features"), Other())
 
 
+def _residual_mean(config: PPOConfig, batch: jax.Array) -> jax.Array:
+    """The policy mean of a fresh ik_prior network whose actor head is biased 0.05 away
+    from 0 (a visible learnt correction), on a batch of raw observations."""
+    network = make_network(config, 6)
+    params = network.init(jax.random.key(3), batch[0], batch[0])
+    head = params["params"]["actor"]
+    last = sorted(k for k in head if k.startswith("Dense"))[-1]
+    head[last]["bias"] = head[last]["bias"] + 0.05
+    return forward(network, params, None, batch, config.obs_clip)[0]
+
+
 def test_ik_gate_fades_the_learnt_correction_to_zero_at_the_target():
     """ik_gate s: mean = q + ik_step + tanh(|e| / s) x the actor's correction; at the
     target position (e = 0) the mean is q + ik_step exactly, far from it the ungated
@@ -769,13 +780,7 @@ def test_ik_gate_fades_the_learnt_correction_to_zero_at_the_target():
     outs = {}
     for gate in (0.0, 0.01):
         config = for_env(PPOConfig(relative_actions=True, ik_prior="residual", ik_gate=gate), env)
-        network = make_network(config, 6)
-        params = network.init(jax.random.key(3), batch[0], batch[0])
-        # a visible correction: the actor's head biased away from 0
-        head = params["params"]["actor"]
-        last = sorted(k for k in head if k.startswith("Dense"))[-1]
-        head[last]["bias"] = head[last]["bias"] + 0.05
-        outs[gate] = forward(network, params, None, batch, config.obs_clip)[0]
+        outs[gate] = _residual_mean(config, batch)
     q, step = batch[:, :6], ik_prior_step(batch, 9)[0]
     g = ik_gate(batch, 0.01)
     np.testing.assert_allclose(g[1], 0.0, atol=1e-5)
@@ -896,12 +901,7 @@ def test_ik_gate_wrap_leaves_the_ik_step_alone_while_it_takes_the_long_way():
             ),
             env,
         )
-        network = make_network(config, 6)
-        params = network.init(jax.random.key(3), batch[0], batch[0])
-        head = params["params"]["actor"]
-        last = sorted(k for k in head if k.startswith("Dense"))[-1]
-        head[last]["bias"] = head[last]["bias"] + 0.05
-        outs[gate_wrap] = forward(network, params, None, batch, config.obs_clip)[0]
+        outs[gate_wrap] = _residual_mean(config, batch)
     q, g = batch[:, :6], ik_gate(batch, 0.01)
     assert float(g[0]) > 0.3
     assert float(jnp.abs(outs[False][0] - q[0] - step[0]).min()) > 0.005  # gated residual
