@@ -119,13 +119,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--preset",
         choices=sorted(PRESETS),
-        help="PPO preset: 'default' (thousands of envs on one GPU), 'paper' (the paper's "
-        "baselines ppo2 run: 1 env, 2048 steps, 1e8 steps), 'ros2learn' (2 x 16 nets, "
-        "exponential lr), 'cpu' (256 envs x 16 steps, 3e6 steps: a laptop CPU), "
-        "'random_target' (default with staggered first episodes), 'random_target_orient' "
-        "(random_target plus the joint-limit curriculum and the gated IK residual); flags "
-        "override its fields (default: random_target_orient for an *OrientRandomTarget "
-        "env, random_target for the other *RandomTarget envs, else default)",
+        help="PPO preset (mara_mjx/ppo/config.py PRESETS): default (thousands of envs on a "
+        "GPU), paper (1 env, as the paper), ros2learn, cpu (a laptop), random_target (default, "
+        "staggered episodes), random_target_orient (plus the gated IK residual); flags override "
+        "its fields (default: the *OrientRandomTarget, *RandomTarget or fixed-target one)",
     )
     parser.add_argument(
         "--resume",
