@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import pickle
+import os
 import sys
 import time
 from pathlib import Path
@@ -25,9 +25,10 @@ import jax
 import mara_mjx
 from mara_mjx.envs import targets
 from mara_mjx.ppo import target_eval
-from mara_mjx.ppo.config import PPOConfig
 from mara_mjx.ppo.evaluation import evaluate, make_evaluate
-from mara_mjx.ppo.policy import make_policy
+
+sys.path.insert(0, os.path.dirname(__file__))
+from random_target_study import load_saved_policy  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -84,10 +85,7 @@ def main(argv: list[str] | None = None) -> None:
 
     for seed in args.seeds:
         t0 = time.monotonic()
-        with open(args.folder / f"seed{seed}.pkl", "rb") as f:
-            net_params, stats, cfg = pickle.load(f)
-        cfg = {k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}
-        policy = make_policy(net_params, PPOConfig(**cfg), stats)
+        policy = load_saved_policy(args.folder, seed)
         res = evaluate(env, policy, ev_config, params, fn=fn)
         summary = target_eval.TargetEvalResult(
             res, poses.pos, poses.quat, 1000 * gaps.min(1)

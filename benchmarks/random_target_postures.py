@@ -16,8 +16,8 @@ rest), with the mean and spread of the final joints.
 from __future__ import annotations
 
 import argparse
-import json
-import pickle
+import os
+import sys
 from pathlib import Path
 
 import jax
@@ -27,8 +27,10 @@ import mara_mjx
 from mara_mjx.envs import targets
 from mara_mjx.envs.task_space import pose_step
 from mara_mjx.ppo import target_eval
-from mara_mjx.ppo.config import PPOConfig
-from mara_mjx.ppo.policy import make_policy
+
+sys.path.insert(0, os.path.dirname(__file__))
+from orientation_study import parse_variant  # noqa: E402
+from random_target_study import load_saved_policy  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -64,13 +66,7 @@ def main(argv: list[str] | None = None) -> None:
     keys = jax.random.split(jax.random.key(0), args.poses)
     qi = next(p["start"] for p in env.observation_layout if p["name"] == "quat_err")
     for seed in args.seeds:
-        with open(args.folder / f"seed{seed}.pkl", "rb") as f:
-            net_params, stats, cfg = pickle.load(f)
-        cfg = {k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}
-        for part in filter(None, args.set.split(";")):
-            key, value = part.split("=", 1)
-            cfg[key] = json.loads(value)
-        policy = make_policy(net_params, PPOConfig(**cfg), stats)
+        policy = load_saved_policy(args.folder, seed, parse_variant(args.set) if args.set else {})
 
         @jax.jit
         def rollout(keys, params, policy=policy):

@@ -31,13 +31,22 @@ import numpy as np
 import mara_mjx
 from mara_mjx.envs import targets
 from mara_mjx.ppo import target_eval
-from mara_mjx.ppo.config import PRESETS, default_preset
+from mara_mjx.ppo.config import PRESETS, PPOConfig, default_preset
 from mara_mjx.ppo.evaluation import evaluate, make_evaluate
 from mara_mjx.ppo.policy import make_policy
 from mara_mjx.ppo.train import make_seed_trainer, make_train, take_seed
 
 sys.path.insert(0, os.path.dirname(__file__))
 from orientation_study import parse_variant, run_studies  # noqa: E402
+
+
+def load_saved_policy(folder, seed: int, overrides: dict | None = None):
+    """The deterministic policy of `seed` from a `--save-params` folder (what `study`
+    pickles: params, obs_stats, config dict), with PPOConfig `overrides` if given."""
+    with open(os.path.join(folder, f"seed{seed}.pkl"), "rb") as f:
+        net_params, stats, cfg = pickle.load(f)
+    cfg = {k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}
+    return make_policy(net_params, PPOConfig(**{**cfg, **(overrides or {})}), stats)
 
 
 def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:

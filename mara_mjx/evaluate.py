@@ -93,8 +93,8 @@ def main(argv: list[str] | None = None) -> int:
         config = EvalConfig().replace(**overrides(args, "eval"))
     except ValueError as e:
         raise UserError(f"invalid eval config: {e}") from e
-    if config.rate_limit and not uses_real_driver(args, args.checkpoint):
-        check_rate_limit(config, "train")
+    if config.rate_limit:  # (reads the checkpoint's driver only then)
+        check_rate_limit(config, "real" if uses_real_driver(args, args.checkpoint) else "train")
     if group is not None:
         top = Path(args.checkpoint)
         return seeds.evaluate_run(top, group, config, env_overrides(args), args.json)
