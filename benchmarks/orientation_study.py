@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import pickle
 import time
 
 import jax
@@ -34,7 +35,7 @@ import mara_mjx
 from mara_mjx.ppo.config import PRESETS, EvalConfig
 from mara_mjx.ppo.evaluation import make_evaluate
 from mara_mjx.ppo.policy import make_policy
-from mara_mjx.ppo.train import make_seed_trainer, make_train
+from mara_mjx.ppo.train import make_seed_trainer, make_train, take_seed
 
 VARIANTS = {
     "default": {},  # the current default preset
@@ -164,6 +165,16 @@ def make_probe(env, probe_steps: int, episodes: int = 4):
     return probe
 
 
+def save_seed_params(root: str, task: str, variant: str, seed: int, seed_state, config) -> None:
+    """Pickle one seed's (params, obs_stats, config dict) under root/<task>_<variant>/seed<s>.pkl
+    for offline analysis (random_target_study.load_saved_policy reads it back)."""
+    name = "".join(c if c.isalnum() or c in "._-" else "_" for c in f"{task}_{variant}")
+    folder = os.path.join(root, name)
+    os.makedirs(folder, exist_ok=True)
+    with open(os.path.join(folder, f"seed{seed}.pkl"), "wb") as f:
+        pickle.dump(jax.device_get((seed_state.params, seed_state.obs_stats, config.to_dict())), f)
+
+
 def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
     t0 = time.monotonic()
     env = mara_mjx.make(task)
@@ -214,6 +225,8 @@ def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
     holds = jax.device_get(hold_all(policy))
     per_seed = []
     for i, s in enumerate(seeds):
+        if args.save_params:
+            save_seed_params(args.save_params, task, variant, s, take_seed(state, i), config)
         per_seed.append(
             {
                 "seed": s,
@@ -264,6 +277,7 @@ def main():
     p.add_argument("--chunk", type=int, default=20)
     p.add_argument("--probe-steps", type=int, default=60)
     p.add_argument("--tiny", action="store_true", help="CPU smoke test sizes")
+    p.add_argument("--save-params", default="", help="folder: each seed's params, pickled")
     p.add_argument("--out", default="orientation_study.json")
     args = p.parse_args()
     run_studies(study, args, "orientation_study.py")

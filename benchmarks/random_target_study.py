@@ -37,7 +37,7 @@ from mara_mjx.ppo.policy import make_policy
 from mara_mjx.ppo.train import make_seed_trainer, make_train, take_seed
 
 sys.path.insert(0, os.path.dirname(__file__))
-from orientation_study import parse_variant, run_studies  # noqa: E402
+from orientation_study import parse_variant, run_studies, save_seed_params  # noqa: E402
 
 
 def load_saved_policy(folder, seed: int, overrides: dict | None = None):
@@ -108,13 +108,7 @@ def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
         seed_state = take_seed(state, i)
         policy = make_policy(seed_state, config)
         if args.save_params:  # for offline analysis: (params, obs_stats, config) per seed
-            name = "".join(c if c.isalnum() or c in "._-" else "_" for c in f"{task}_{variant}")
-            folder = os.path.join(args.save_params, name)
-            os.makedirs(folder, exist_ok=True)
-            with open(os.path.join(folder, f"seed{s}.pkl"), "wb") as f:
-                pickle.dump(
-                    jax.device_get((seed_state.params, seed_state.obs_stats, config.to_dict())), f
-                )
+            save_seed_params(args.save_params, task, variant, s, seed_state, config)
         res = evaluate(env, policy, ev_config, params, fn=fn)
         train = env.pose_table().pos
         gaps = np.linalg.norm(poses.pos[:, None, :] - train[None, :, :], axis=-1)

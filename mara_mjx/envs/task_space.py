@@ -57,6 +57,10 @@ MAX_ROTATION_STEP = 0.25
 """pose_step: the most TCP rotation (rad) asked for in one step."""
 MAX_STEP_JOINT = 0.25
 """pose_step: the most any joint moves (rad) in one step (the step is scaled down whole)."""
+ORIENT_FIRST_STANDOFF = 0.5
+"""pose_step(orient_first=True): m of TCP distance kept from the target per rad of rotation
+still to turn (0.5: 8.7 mm per degree, so the TCP enters a 5 mm box on every axis
+only with the tool within 1 degree)."""
 WRAP_NEAR = 0.02
 """pose_step(wrap_last=True): m, the TCP distance within which the last joint may be
 taken the long way round (farther, the full Newton step is no estimate of where it ends)."""
@@ -116,7 +120,11 @@ def _clip_norm(x: jax.Array, limit: float) -> jax.Array:
 
 
 def pose_step(
-    q: jax.Array, e: jax.Array, quat_err: jax.Array | None = None, wrap_last: bool = False
+    q: jax.Array,
+    e: jax.Array,
+    quat_err: jax.Array | None = None,
+    wrap_last: bool = False,
+    orient_first: bool = False,
 ) -> jax.Array:
     """One bounded damped-least-squares step of the nominal arm's joints toward the target
     an observation reports: q (..., 6) rad, e (..., 3) = p_tcp - p_target (m), quat_err
@@ -133,13 +141,28 @@ def pose_step(
     that joint spans a full turn, it moves the other way (toward the same angle less or
     plus 2 pi, at most MAX_STEP_JOINT per step; the TCP lies on that joint's axis, so the
     turn only rolls the tool and the other joints' step still holds the position and
-    the tool axis): a local step would stop at the limit with the tool's roll off. No
-    gradient flows through it."""
-    return pose_step_wrapping(q, e, quat_err, wrap_last)[0]
+    the tool axis): a local step would stop at the limit with the tool's roll off.
+    With the orientation and `orient_first`, the tool is turned onto the target before
+    the TCP closes in, as a peg is aligned before it is inserted: the rotation step is
+    as above, and the TCP moves toward the target (at most MAX_POSITION_STEP) but no
+    closer than ORIENT_FIRST_STANDOFF x the angle still left after this step's rotation
+    (never away from it). Once the remaining angle fits in one step the whole pose
+    converges together, so an evaluation that stops at the first step within a position
+    tolerance finds the tool turned onto the target too. With wrap_last as well, the
+    flange's long way round is decided from the roll still to turn (the twist of the
+    correction about the last joint's axis) at any distance, and the TCP's position is
+    held while the last joint rolls (benchmarks/NOTES.md section 26). No gradient flows
+    through it.
+    """
+    return pose_step_wrapping(q, e, quat_err, wrap_last, orient_first)[0]
 
 
 def pose_step_wrapping(
-    q: jax.Array, e: jax.Array, quat_err: jax.Array | None = None, wrap_last: bool = False
+    q: jax.Array,
+    e: jax.Array,
+    quat_err: jax.Array | None = None,
+    wrap_last: bool = False,
+    orient_first: bool = False,
 ) -> tuple[jax.Array, jax.Array]:
     """pose_step's dq (..., 6) and whether it takes the last joint the long way round
     (..., bool: always False without quat_err and wrap_last)."""
@@ -152,20 +175,41 @@ def pose_step_wrapping(
     def one(q1: jax.Array, e1: jax.Array, *r: jax.Array) -> tuple[jax.Array, jax.Array]:
         jac = chain.jacobian(q1)
         dx = _clip_norm(-e1, MAX_POSITION_STEP)
-        if r:
+        if r and orient_first:  # turn the tool first: keep off by the angle left
+            turn = _clip_norm(-rotation_vector(r[0]), MAX_ROTATION_STEP)
+            left = jnp.maximum(jnp.linalg.norm(rotation_vector(r[0])) - MAX_ROTATION_STEP, 0.0)
+            dist = jnp.linalg.norm(e1)
+            move = jnp.clip(dist - ORIENT_FIRST_STANDOFF * left, 0.0, MAX_POSITION_STEP)
+            dx = jnp.concatenate([-e1 * (move / jnp.maximum(dist, 1e-12)), turn])
+        elif r:
             dx = jnp.concatenate([dx, _clip_norm(-rotation_vector(r[0]), MAX_ROTATION_STEP)])
         else:
             jac = jac[:3]
         dq = dls_step(jac, dx)
         use = jnp.zeros((), bool)
         if r and wrap:  # the last joint the long way round where the short way is blocked
-            full = dls_step(jac, jnp.concatenate([-e1, -rotation_vector(r[0])]))
-            goal = q1[5] + full[5]
+            if orient_first:  # the flange's roll still to turn: the twist of the correction
+                # conj(quat_err) about the last joint's axis (swing-twist), at any distance
+                axis = jac[3:, 5] / jnp.maximum(jnp.linalg.norm(jac[3:, 5]), 1e-12)
+                quat = quat_canonical(r[0])
+                goal = q1[5] + 2.0 * jnp.arctan2(-jnp.dot(quat[1:], axis), quat[0])
+            else:
+                full = dls_step(jac, jnp.concatenate([-e1, -rotation_vector(r[0])]))
+                goal = q1[5] + full[5]
             shift = jnp.where(goal > hi6, -2 * jnp.pi, jnp.where(goal < lo6, 2 * jnp.pi, 0.0))
             other = goal + shift
             near = jnp.linalg.norm(e1) < WRAP_NEAR  # far away the Newton step means little
+            if orient_first:  # the twist is the roll still to turn wherever the TCP is
+                near = jnp.ones((), bool)
             use = near & (shift != 0.0) & (other >= lo6) & (other <= hi6)
             long_way = jnp.clip(other - q1[5], -MAX_STEP_JOINT, MAX_STEP_JOINT)
+            if orient_first:  # hold the position while the flange rolls the long way:
+                # joints 1-5 keep the TCP where it is and turn the tool axis (the rotation
+                # less its part about the flange's axis), the last joint rolls
+                turn = dx[3:] - jnp.dot(dx[3:], axis) * axis
+                rhs = jnp.concatenate([-jac[:3, 5] * long_way, turn])
+                held = jnp.append(dls_step(jac[:, :5], rhs), long_way)
+                dq = jnp.where(use, held, dq)
             dq = dq.at[5].set(jnp.where(use, long_way, dq[5]))
         big = jnp.max(jnp.abs(dq))
         return dq * jnp.minimum(1.0, MAX_STEP_JOINT / jnp.maximum(big, 1e-12)), use

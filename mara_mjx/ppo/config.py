@@ -133,6 +133,14 @@ class PPOConfig(_ConfigMixin):
     step turns the last joint the long way round, a manoeuvre of up to 2 pi over tens of
     steps that a correction learnt mostly elsewhere otherwise undoes halfway (a limit
     cycle measured in benchmarks/NOTES.md section 24)."""
+    ik_orient_first: bool = False
+    """With ik_prior and an orientation in the task: the IK step turns the tool onto the
+    target before the TCP closes in (the TCP keeps 0.5 m per rad of rotation still to
+    turn from the target, as a peg is aligned before insertion); with ik_wrap it decides
+    the flange's long way round from the roll still to turn, at any distance, and holds
+    the TCP's position while it rolls (envs/task_space.pose_step orient_first;
+    benchmarks/NOTES.md section 26). For an evaluation that stops at the first step
+    within a position tolerance, as the paper's; the env is unchanged."""
     hidden_obs: tuple[int, ...] = ()
     """Observation indices that neither network sees (set to 0 after normalisation), e.g.
     9 10 11 for the TCP velocity of MARA/MARACollision (13 14 15 for the Orient tasks)."""
@@ -320,6 +328,11 @@ class PPOConfig(_ConfigMixin):
                 f"joint, but ik_gate={self.ik_gate}, ik_wrap={self.ik_wrap}; set both "
                 f"(ik_gate > 0, ik_wrap=true), or ik_gate_wrap=false"
             )
+        if self.ik_orient_first and not self.ik_prior:
+            raise ValueError(
+                "ik_orient_first=true changes the IK step of ik_prior, which is off; "
+                "set ik_prior='features' or 'residual', or ik_orient_first=false"
+            )
         if self.ik_wrap and not self.ik_prior:
             raise ValueError(
                 "ik_wrap=true changes the IK step of ik_prior, which is off; "
@@ -401,7 +414,8 @@ def for_env(config: PPOConfig, env: Any) -> PPOConfig:
     `observation_layout` (a list of {name, start, stop, ...}; -1 where it has no
     quat_err), `train_reward` and `train_collision_penalty` cleared for an env whose
     params have no `reward`, `train_reset_noise` for one without `reset_noise`, and
-    `orientation_bonus`, `ik_wrap` and `ik_gate_wrap` for one without quat_err."""
+    `orientation_bonus`, `ik_wrap`, `ik_gate_wrap` and `ik_orient_first` for one without
+    quat_err."""
     layout = getattr(env, "observation_layout", None) or []
     starts = [int(part["start"]) for part in layout if part.get("name") == "quat_err"]
     index = starts[0] if ((config.canonical_quat or config.ik_prior) and starts) else -1
@@ -424,6 +438,8 @@ def for_env(config: PPOConfig, env: Any) -> PPOConfig:
         resolved = resolved.replace(orientation_bonus=0.0)
     if not starts and resolved.ik_wrap:  # no tool roll to wrap in a position-only task
         resolved = resolved.replace(ik_wrap=False, ik_gate_wrap=False)
+    if not starts and resolved.ik_orient_first:  # no orientation to orient_first with
+        resolved = resolved.replace(ik_orient_first=False)
     return resolved
 
 
@@ -554,7 +570,7 @@ PRESETS: dict[str, PPOConfig] = {
 }
 
 # The random-target tasks (issue 12): the default with staggered first episodes. With one
-# target, the synchronised episodes of the default still train (section 12's recipe was
+# target, the orient_firstd episodes of the default still train (section 12's recipe was
 # tuned with them); with a new target every episode, the updates that see the reach (one
 # in max_episode_steps / num_steps = 32) were too few and training collapsed on some seeds
 # (benchmarks/NOTES.md section 19: 37-60% of held-out poses within 5 mm without it,

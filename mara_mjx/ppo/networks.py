@@ -68,6 +68,7 @@ class ActorCritic(nn.Module):
     ik_gate: float = 0.0
     ik_wrap: bool = False
     ik_gate_wrap: bool = False
+    ik_orient_first: bool = False
 
     @nn.compact
     def __call__(
@@ -80,7 +81,9 @@ class ActorCritic(nn.Module):
         if self.ik_prior:  # the IK step toward the observed target (PPOConfig.ik_prior)
             if raw_obs is None:
                 raise ValueError("ik_prior: the network needs the raw observation")
-            ik_step, wrapping = ik_prior_step(raw_obs, self.ik_quat_index, self.ik_wrap)
+            ik_step, wrapping = ik_prior_step(
+                raw_obs, self.ik_quat_index, self.ik_wrap, self.ik_orient_first
+            )
             obs = jnp.concatenate([obs, *(jnp.tanh(ik_step / s) for s in IK_FEATURE_SCALES)], -1)
         mean = MLP(self.hidden_sizes, self.action_size, 0.01, name="actor")(obs)
         if self.relative_actions:
@@ -120,7 +123,7 @@ IK_FEATURE_SCALES = (0.002, 0.03, 0.3)
 
 
 def ik_prior_step(
-    raw_obs: jax.Array, quat_index: int, wrap_last: bool = False
+    raw_obs: jax.Array, quat_index: int, wrap_last: bool = False, orient_first: bool = False
 ) -> tuple[jax.Array, jax.Array]:
     """The bounded IK step (mara_mjx.envs.task_space.pose_step) toward the pose a MARA
     observation reports: q = obs[:6], e = obs[6:9], quat_err at quat_index (-1: none) ->
@@ -128,7 +131,7 @@ def ik_prior_step(
     from mara_mjx.envs.task_space import pose_step_wrapping
 
     quat = raw_obs[..., quat_index : quat_index + 4] if quat_index >= 0 else None
-    return pose_step_wrapping(raw_obs[..., :6], raw_obs[..., 6:9], quat, wrap_last)
+    return pose_step_wrapping(raw_obs[..., :6], raw_obs[..., 6:9], quat, wrap_last, orient_first)
 
 
 def ik_gate(raw_obs: jax.Array, scale: float) -> jax.Array:
@@ -164,6 +167,7 @@ def make_network(config: Any, action_size: int) -> ActorCritic:
         config.ik_gate,
         config.ik_wrap,
         config.ik_gate_wrap,
+        config.ik_orient_first,
     )
 
 
