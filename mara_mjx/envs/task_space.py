@@ -59,8 +59,12 @@ MAX_STEP_JOINT = 0.25
 """pose_step: the most any joint moves (rad) in one step (the step is scaled down whole)."""
 ORIENT_FIRST_STANDOFF = 0.5
 """pose_step(orient_first=True): m of TCP distance kept from the target per rad of rotation
-still to turn (0.5: 8.7 mm per degree, so the TCP enters a 5 mm box on every axis
-only with the tool within 1 degree)."""
+still to turn after the step's own (0.5: 8.7 mm per degree). To first order the TCP then
+enters a 5 mm box on every axis only with the tool within about a degree; the last
+approach steps can turn the tool again by their second-order effect (in one of ~300
+random reachable poses the entry came with 1.7 deg, tests/test_ik_orient_first.py), and
+where the whole step is scaled down to MAX_STEP_JOINT less than MAX_ROTATION_STEP of
+the rotation happens, so the TCP may end a step closer than the standoff implies."""
 WRAP_NEAR = 0.02
 """pose_step(wrap_last=True): m, the TCP distance within which the last joint may be
 taken the long way round (farther, the full Newton step is no estimate of where it ends)."""
@@ -163,9 +167,13 @@ def pose_step_wrapping(
     quat_err: jax.Array | None = None,
     wrap_last: bool = False,
     orient_first: bool = False,
+    flag_roll: bool = False,
 ) -> tuple[jax.Array, jax.Array]:
     """pose_step's dq (..., 6) and whether it takes the last joint the long way round
-    (..., bool: always False without quat_err and wrap_last)."""
+    (..., bool: always False without quat_err and wrap_last); with orient_first and
+    flag_roll, also while the flange still has more than MAX_ROTATION_STEP of roll to
+    turn (the second half of a long way round looks like a short roll: the flag stays on
+    through it; benchmarks/NOTES.md section 26)."""
     chain = nominal_chain()
     lo6, hi6 = last_joint_range()
     wrap = wrap_last and hi6 - lo6 >= 2 * jnp.pi - 0.01
@@ -186,7 +194,7 @@ def pose_step_wrapping(
         else:
             jac = jac[:3]
         dq = dls_step(jac, dx)
-        use = jnp.zeros((), bool)
+        use = rolling = jnp.zeros((), bool)
         if r and wrap:  # the last joint the long way round where the short way is blocked
             if orient_first:  # the flange's roll still to turn: the twist of the correction
                 # conj(quat_err) about the last joint's axis (swing-twist), at any distance
@@ -202,6 +210,9 @@ def pose_step_wrapping(
             if orient_first:  # the twist is the roll still to turn wherever the TCP is
                 near = jnp.ones((), bool)
             use = near & (shift != 0.0) & (other >= lo6) & (other <= hi6)
+            if orient_first and flag_roll:  # past half a turn, the rest of the long way is
+                # the short way: a roll of the flange is the step's own until it fits in one
+                rolling = jnp.abs(goal - q1[5]) > MAX_ROTATION_STEP
             long_way = jnp.clip(other - q1[5], -MAX_STEP_JOINT, MAX_STEP_JOINT)
             if orient_first:  # hold the position while the flange rolls the long way:
                 # joints 1-5 keep the TCP where it is and turn the tool axis (the rotation
@@ -212,7 +223,7 @@ def pose_step_wrapping(
                 dq = jnp.where(use, held, dq)
             dq = dq.at[5].set(jnp.where(use, long_way, dq[5]))
         big = jnp.max(jnp.abs(dq))
-        return dq * jnp.minimum(1.0, MAX_STEP_JOINT / jnp.maximum(big, 1e-12)), use
+        return dq * jnp.minimum(1.0, MAX_STEP_JOINT / jnp.maximum(big, 1e-12)), use | rolling
 
     if rot is None:
         return jnp.vectorize(one, signature="(6),(3)->(6),()")(q, e)

@@ -141,6 +141,15 @@ class PPOConfig(_ConfigMixin):
     the TCP's position while it rolls (envs/task_space.pose_step orient_first;
     benchmarks/NOTES.md section 26). For an evaluation that stops at the first step
     within a position tolerance, as the paper's; the env is unchanged."""
+    train_ik_gate_roll: bool = False
+    """During training only, with ik_gate_wrap and ik_orient_first: the gate is also closed
+    while the IK step's flange roll still exceeds one step (0.25 rad), so that the second
+    half of a long way round (where the short and the long way agree and the wrap flag is
+    off) is the IK step's alone. The policy that training saves (evaluate, play, the
+    gymnasium adapter) runs without it. Measured (benchmarks/NOTES.md section 26, 5 seeds
+    per Orient task): the two MARACollisionOrient seeds that cycled on the far side of the
+    base reach the pose; kept at inference too, 3 MARAOrient seeds in 5 missed 1-2
+    episodes in 10, without it at inference all 10 seed-runs reached 10/10 within 2 deg."""
     hidden_obs: tuple[int, ...] = ()
     """Observation indices that neither network sees (set to 0 after normalisation), e.g.
     9 10 11 for the TCP velocity of MARA/MARACollision (13 14 15 for the Orient tasks)."""
@@ -328,6 +337,12 @@ class PPOConfig(_ConfigMixin):
                 f"joint, but ik_gate={self.ik_gate}, ik_wrap={self.ik_wrap}; set both "
                 f"(ik_gate > 0, ik_wrap=true), or ik_gate_wrap=false"
             )
+        if self.train_ik_gate_roll and not (self.ik_gate_wrap and self.ik_orient_first):
+            raise ValueError(
+                f"train_ik_gate_roll=true extends the gate closing of ik_gate_wrap with "
+                f"ik_orient_first, but ik_gate_wrap={self.ik_gate_wrap}, "
+                f"ik_orient_first={self.ik_orient_first}; set both, or train_ik_gate_roll=false"
+            )
         if self.ik_orient_first and not self.ik_prior:
             raise ValueError(
                 "ik_orient_first=true changes the IK step of ik_prior, which is off; "
@@ -414,8 +429,9 @@ def for_env(config: PPOConfig, env: Any) -> PPOConfig:
     `observation_layout` (a list of {name, start, stop, ...}; -1 where it has no
     quat_err), `train_reward` and `train_collision_penalty` cleared for an env whose
     params have no `reward`, `train_reset_noise` for one without `reset_noise`, and
-    `orientation_bonus`, `ik_wrap`, `ik_gate_wrap` and `ik_orient_first` for one without
-    quat_err."""
+    `orientation_bonus`, `ik_wrap`, `ik_gate_wrap`, `ik_orient_first` and
+    `train_ik_gate_roll`
+    for one without quat_err."""
     layout = getattr(env, "observation_layout", None) or []
     starts = [int(part["start"]) for part in layout if part.get("name") == "quat_err"]
     index = starts[0] if ((config.canonical_quat or config.ik_prior) and starts) else -1
@@ -437,9 +453,9 @@ def for_env(config: PPOConfig, env: Any) -> PPOConfig:
     if not starts and resolved.orientation_bonus > 0.0:  # no orientation in the task
         resolved = resolved.replace(orientation_bonus=0.0)
     if not starts and resolved.ik_wrap:  # no tool roll to wrap in a position-only task
-        resolved = resolved.replace(ik_wrap=False, ik_gate_wrap=False)
-    if not starts and resolved.ik_orient_first:  # no orientation to orient_first with
-        resolved = resolved.replace(ik_orient_first=False)
+        resolved = resolved.replace(ik_wrap=False, ik_gate_wrap=False, train_ik_gate_roll=False)
+    if not starts and resolved.ik_orient_first:  # no orientation to turn first
+        resolved = resolved.replace(ik_orient_first=False, train_ik_gate_roll=False)
     return resolved
 
 
@@ -570,7 +586,7 @@ PRESETS: dict[str, PPOConfig] = {
 }
 
 # The random-target tasks (issue 12): the default with staggered first episodes. With one
-# target, the orient_firstd episodes of the default still train (section 12's recipe was
+# target, the synchronised episodes of the default still train (section 12's recipe was
 # tuned with them); with a new target every episode, the updates that see the reach (one
 # in max_episode_steps / num_steps = 32) were too few and training collapsed on some seeds
 # (benchmarks/NOTES.md section 19: 37-60% of held-out poses within 5 mm without it,

@@ -69,6 +69,7 @@ class ActorCritic(nn.Module):
     ik_wrap: bool = False
     ik_gate_wrap: bool = False
     ik_orient_first: bool = False
+    ik_gate_roll: bool = False
 
     @nn.compact
     def __call__(
@@ -82,7 +83,7 @@ class ActorCritic(nn.Module):
             if raw_obs is None:
                 raise ValueError("ik_prior: the network needs the raw observation")
             ik_step, wrapping = ik_prior_step(
-                raw_obs, self.ik_quat_index, self.ik_wrap, self.ik_orient_first
+                raw_obs, self.ik_quat_index, self.ik_wrap, self.ik_orient_first, self.ik_gate_roll
             )
             obs = jnp.concatenate([obs, *(jnp.tanh(ik_step / s) for s in IK_FEATURE_SCALES)], -1)
         mean = MLP(self.hidden_sizes, self.action_size, 0.01, name="actor")(obs)
@@ -123,7 +124,11 @@ IK_FEATURE_SCALES = (0.002, 0.03, 0.3)
 
 
 def ik_prior_step(
-    raw_obs: jax.Array, quat_index: int, wrap_last: bool = False, orient_first: bool = False
+    raw_obs: jax.Array,
+    quat_index: int,
+    wrap_last: bool = False,
+    orient_first: bool = False,
+    flag_roll: bool = False,
 ) -> tuple[jax.Array, jax.Array]:
     """The bounded IK step (mara_mjx.envs.task_space.pose_step) toward the pose a MARA
     observation reports: q = obs[:6], e = obs[6:9], quat_err at quat_index (-1: none) ->
@@ -131,7 +136,9 @@ def ik_prior_step(
     from mara_mjx.envs.task_space import pose_step_wrapping
 
     quat = raw_obs[..., quat_index : quat_index + 4] if quat_index >= 0 else None
-    return pose_step_wrapping(raw_obs[..., :6], raw_obs[..., 6:9], quat, wrap_last, orient_first)
+    return pose_step_wrapping(
+        raw_obs[..., :6], raw_obs[..., 6:9], quat, wrap_last, orient_first, flag_roll
+    )
 
 
 def ik_gate(raw_obs: jax.Array, scale: float) -> jax.Array:
@@ -149,9 +156,10 @@ def canonical_quat(obs: jax.Array, index: int) -> jax.Array:
     return obs.at[..., index : index + 4].set(quat * sign)
 
 
-def make_network(config: Any, action_size: int) -> ActorCritic:
+def make_network(config: Any, action_size: int, training: bool = False) -> ActorCritic:
     """The ActorCritic a PPOConfig describes (the one constructor: training, policies and
-    checkpoints all build it here)."""
+    checkpoints all build it here). `training`: the trainer's network, with the
+    training-only parts of the config (train_ik_gate_roll); policies run without them."""
     return ActorCritic(
         action_size,
         tuple(config.hidden_sizes),
@@ -168,6 +176,7 @@ def make_network(config: Any, action_size: int) -> ActorCritic:
         config.ik_wrap,
         config.ik_gate_wrap,
         config.ik_orient_first,
+        training and config.train_ik_gate_roll,
     )
 
 

@@ -164,7 +164,7 @@ def make_train(
     config = for_env(config, env)
     benv = BatchedEnv(env, config.num_envs, devices=devices)
     mesh = benv.mesh
-    network = make_network(config, benv.action_size)
+    network = make_network(config, benv.action_size, training=True)
     optimizer = make_optimizer(config)
     lr_at_update = make_lr_schedule(config)
     obs_size = benv.observation_size

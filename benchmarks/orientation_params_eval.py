@@ -1,0 +1,86 @@
+"""Evaluate saved fixed-target policies again (issue 11): the per-seed params that
+`orientation_study.py --save-params DIR` pickles, with the paper's evaluation (10
+episodes, stop at the first step with every axis within 5 mm) and the hold (the same
+episodes run to the horizon), optionally with PPOConfig fields changed at inference
+(`--set 'ik_gate_roll=false'`: e.g. a training-only assist switched off).
+
+    python benchmarks/orientation_params_eval.py DIR/MARAOrient_... --task MARAOrient \
+        --seeds 0 1 2 3 4 --set 'ik_gate_roll=false' --out eval.json
+
+Runs on the CPU (about a minute per seed on 2 cores); the evaluation is deterministic.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+
+import mara_mjx
+from mara_mjx.ppo.config import EvalConfig
+from mara_mjx.ppo.evaluation import make_evaluate
+
+sys.path.insert(0, os.path.dirname(__file__))
+from orientation_study import parse_variant  # noqa: E402
+from random_target_study import load_saved_policy  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("folder", type=Path, help="a --save-params folder of one (task, variant)")
+    p.add_argument("--task", required=True)
+    p.add_argument("--seeds", nargs="+", type=int, default=[0])
+    p.add_argument("--set", default="", help="PPOConfig fields changed at inference: 'a=1;b=x'")
+    p.add_argument("--out", default="")
+    args = p.parse_args(argv)
+    overrides = parse_variant(args.set) if args.set else {}
+    env = mara_mjx.make(args.task)
+    stop = jax.jit(make_evaluate(env, EvalConfig()))
+    hold = jax.jit(make_evaluate(env, EvalConfig(tolerance_mm=0.0)))
+    rows = []
+    for seed in args.seeds:
+        policy = load_saved_policy(args.folder, seed, overrides)
+        s, h = jax.device_get(stop(policy)), jax.device_get(hold(policy))
+        row = {
+            "seed": seed,
+            "position_mm": np.mean(s["position_error_mm"], 0).tolist(),
+            "orientation_deg": np.mean(s["orientation_error_deg"], 0).tolist(),
+            "reached": int(np.sum(s["reached"])),
+            "collisions": float(np.mean(s["collisions"])),
+            "hold_position_mm": np.mean(h["position_error_mm"], 0).tolist(),
+            "hold_orientation_deg": np.mean(h["orientation_error_deg"], 0).tolist(),
+            "hold_collisions_per_episode": float(np.mean(h["collisions"])),
+        }
+        rows.append(row)
+        print(
+            f"{args.task} seed {seed}: reached {row['reached']}/10, "
+            f"pos {np.round(row['position_mm'], 2).tolist()} mm, "
+            f"ori {np.round(row['orientation_deg'], 2).tolist()} deg, "
+            f"hold ori {np.round(row['hold_orientation_deg'], 2).tolist()}",
+            flush=True,
+        )
+        if args.out:
+            with open(args.out, "w") as f:
+                json.dump(
+                    {
+                        "command": "python benchmarks/orientation_params_eval.py "
+                        + " ".join(sys.argv[1:] if argv is None else argv),
+                        "device": str(jax.devices()[0]),
+                        "jax": jax.__version__,
+                        "folder": str(args.folder),
+                        "task": args.task,
+                        "set": overrides,
+                        "per_seed": rows,
+                    },
+                    f,
+                    indent=1,
+                )
+
+
+if __name__ == "__main__":
+    main()
