@@ -470,6 +470,9 @@ def test_the_preset_follows_the_task_unless_one_is_given():
     assert ppo("--env", "MARACollisionRandomTarget").ik_prior == ""
     assert ppo("--env", "MARAOrientRandomTarget", "--ik_gate", "0.05").ik_gate == 0.05
     assert ppo("--env", "MARACollisionOrient").stagger_episodes is False
+    first = ppo("--env", "MARAOrient", "--preset", "orient_first")
+    assert first.ik_orient_first and first.train_ik_gate_roll and first.stagger_episodes
+    assert first.total_timesteps == ppo("--env", "MARAOrient").total_timesteps
     assert ppo("--env", "MARARandomTarget", "--preset", "default").stagger_episodes is False
     flagged = ppo("--env", "MARARandomTarget", "--stagger_episodes", "false")
     assert flagged.stagger_episodes is False
