@@ -25,6 +25,7 @@ import argparse
 import json
 import os
 import pickle
+import shlex
 import time
 
 import jax
@@ -293,7 +294,7 @@ def run_studies(study, args, script: str, **extra) -> None:
             with open(args.out, "w") as f:
                 json.dump(
                     {
-                        "command": f"python benchmarks/{script} " + " ".join(os.sys.argv[1:]),
+                        "command": f"python benchmarks/{script} " + shlex.join(os.sys.argv[1:]),
                         "device": str(jax.devices()[0]),
                         "jax": jax.__version__,
                         **extra,

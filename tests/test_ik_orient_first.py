@@ -35,7 +35,7 @@ from mara_mjx.envs.task_space import (
     rotation_vector,
 )
 from mara_mjx.ppo import PPOConfig
-from mara_mjx.ppo.config import for_env
+from mara_mjx.ppo.config import PRESETS, for_env
 from mara_mjx.ppo.networks import forward, ik_prior_step, make_network
 from mara_mjx.ppo.policy import make_policy
 
@@ -373,15 +373,7 @@ def test_train_ik_gate_roll_is_validated_cleared_and_absent_from_policies(orient
     ik_orient_first and is cleared with them on a position-only task."""
     with pytest.raises(ValueError, match="train_ik_gate_roll"):
         PPOConfig(relative_actions=True, ik_prior="residual", train_ik_gate_roll=True)
-    config = PPOConfig(
-        relative_actions=True,
-        ik_prior="residual",
-        ik_gate=0.1,
-        ik_wrap=True,
-        ik_gate_wrap=True,
-        ik_orient_first=True,
-        train_ik_gate_roll=True,
-    )
+    config = PRESETS["orient_first"]
     cleared = for_env(config, mara_mjx.make("MARACollision"))
     assert not (cleared.train_ik_gate_roll or cleared.ik_gate_wrap or cleared.ik_orient_first)
     config = for_env(config, orient.env)

@@ -489,3 +489,25 @@ def test_rate_limit_without_the_real_driver_is_a_clear_error():
     with pytest.raises(train_cli.UserError, match="add --driver real, or drop --rate_limit"):
         plan("--env", "MARA", "--rate_limit", "true")
     assert plan("--env", "MARA", "--rate_limit", "true", "--driver", "real").eval.rate_limit
+
+
+def test_orient_first_preset_trains_and_its_checkpoint_runs_without_the_training_gate(
+    users_env, tmp_path
+):
+    """`--preset orient_first` on a fixed Orient task through the CLIs: the run records
+    the training-only roll gate, `evaluate` reads the checkpoint, and the policy a user
+    loads from it runs without the gate (PPOConfig.train_ik_gate_roll)."""
+    from mara_mjx.ppo.policy import make_policy
+
+    out = tmp_path / "run"
+    tiny = [*TINY[2:], "--env", "MARAOrient", "--preset", "orient_first", "--tensorboard", "false"]
+    proc = run_module(users_env, "mara_mjx.train", *tiny, "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    ppo = json.loads((out / "config.json").read_text())["ppo"]
+    assert ppo["ik_orient_first"] and ppo["train_ik_gate_roll"] and ppo["stagger_episodes"]
+    report = tmp_path / "eval.json"
+    proc = run_module(users_env, "mara_mjx.evaluate", str(out), "--json", str(report))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    assert json.loads(report.read_text())
+    policy = make_policy(str(out / CKPT2))
+    assert policy.config.train_ik_gate_roll and not policy.network.ik_gate_roll

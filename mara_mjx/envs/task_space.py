@@ -32,7 +32,9 @@ as the base its output corrects (PPOConfig.ik_prior, residual-policy learning):
 With wrap_last (and an orientation), the last joint (the tool flange's roll, range a
 full turn) is taken the long way round where the short way would end past its limit: the
 same tool pose, 2 pi of that joint away, as a local step would otherwise stop at the
-limit (benchmarks/NOTES.md section 24).
+limit (benchmarks/NOTES.md section 24). With orient_first the tool is turned onto the
+target before the TCP closes in (for an evaluation that stops at the first step within a
+position tolerance; benchmarks/NOTES.md section 26).
 """
 
 from __future__ import annotations
@@ -61,8 +63,8 @@ ORIENT_FIRST_STANDOFF = 0.5
 """pose_step(orient_first=True): m of TCP distance kept from the target per rad of rotation
 still to turn after the step's own (0.5: 8.7 mm per degree). To first order the TCP then
 enters a 5 mm box on every axis only with the tool within about a degree; the last
-approach steps can turn the tool again by their second-order effect (in one of ~300
-random reachable poses the entry came with 1.7 deg, tests/test_ik_orient_first.py), and
+approach steps can turn the tool again by their second-order effect (one of the poses of
+tests/test_ik_orient_first.py enters with 1.7 deg, with or without orient_first), and
 where the whole step is scaled down to MAX_STEP_JOINT less than MAX_ROTATION_STEP of
 the rotation happens, so the TCP may end a step closer than the standoff implies."""
 WRAP_NEAR = 0.02
@@ -155,8 +157,11 @@ def pose_step(
     tolerance finds the tool turned onto the target too. With wrap_last as well, the
     flange's long way round is decided from the roll still to turn (the twist of the
     correction about the last joint's axis) at any distance, and the TCP's position is
-    held while the last joint rolls (benchmarks/NOTES.md section 26). No gradient flows
-    through it.
+    held while the last joint rolls (benchmarks/NOTES.md section 26). Known limit: where
+    the last joint's goal lies within a step of its limit near +-pi, the choice between
+    the short and the long way can flip from step to step as the other joints move (a
+    cycle found by a review in a random-pose sweep; not on the fixed targets' poses). No
+    gradient flows through it.
     """
     return pose_step_wrapping(q, e, quat_err, wrap_last, orient_first)[0]
 

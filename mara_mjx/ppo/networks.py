@@ -104,7 +104,8 @@ class ActorCritic(nn.Module):
             if self.ik_prior == "residual":
                 if self.ik_gate > 0.0:  # near the target the IK step alone (PPOConfig.ik_gate)
                     gate = ik_gate(raw_obs, self.ik_gate)
-                    if self.ik_gate_wrap:  # and while it turns the flange the long way
+                    if self.ik_gate_wrap:  # and while it turns the flange the long way (or
+                        # rolls it by more than a step: ik_gate_roll, PPOConfig.train_ik_gate_roll)
                         gate = jnp.where(wrapping, 0.0, gate)
                     delta = delta * gate[..., None]
                 delta = delta + ik_step
@@ -132,7 +133,8 @@ def ik_prior_step(
 ) -> tuple[jax.Array, jax.Array]:
     """The bounded IK step (mara_mjx.envs.task_space.pose_step) toward the pose a MARA
     observation reports: q = obs[:6], e = obs[6:9], quat_err at quat_index (-1: none) ->
-    (dq (..., 6), whether it takes the last joint the long way round (...))."""
+    (dq (..., 6), whether it takes the last joint the long way round, or with flag_roll
+    still rolls it by more than a step (...); task_space.pose_step_wrapping)."""
     from mara_mjx.envs.task_space import pose_step_wrapping
 
     quat = raw_obs[..., quat_index : quat_index + 4] if quat_index >= 0 else None

@@ -165,6 +165,7 @@ def make_train(
     benv = BatchedEnv(env, config.num_envs, devices=devices)
     mesh = benv.mesh
     network = make_network(config, benv.action_size, training=True)
+    saved = make_network(config, benv.action_size)  # the policy training saves (the probe's)
     optimizer = make_optimizer(config)
     lr_at_update = make_lr_schedule(config)
     obs_size = benv.observation_size
@@ -258,7 +259,11 @@ def make_train(
             mean, log_std, _ = policy(params, stats, env_state.obs)
             sample = mean + jnp.exp(log_std) * jax.random.normal(noise_key, mean.shape)
             probe = t == config.num_steps
-            action = jnp.where(probe, mean, sample)
+            if config.train_ik_gate_roll:  # the probe measures the saved policy's mean
+                mean_saved = forward(saved, params, stats, env_state.obs, config.obs_clip)[0]
+                action = jnp.where(probe, mean_saved, sample)
+            else:
+                action = jnp.where(probe, mean, sample)
             env_action = action
             if config.max_joint_step > 0.0:  # samples stay within m of the observed joints
                 q = env_state.obs[..., : action.shape[-1]]
