@@ -189,8 +189,9 @@ def pose_step_wrapping(
         jac = chain.jacobian(q1)
         dx = _clip_norm(-e1, MAX_POSITION_STEP)
         if r and orient_first:  # turn the tool first: keep off by the angle left
-            turn = _clip_norm(-rotation_vector(r[0]), MAX_ROTATION_STEP)
-            left = jnp.maximum(jnp.linalg.norm(rotation_vector(r[0])) - MAX_ROTATION_STEP, 0.0)
+            rot = -rotation_vector(r[0])
+            turn = _clip_norm(rot, MAX_ROTATION_STEP)
+            left = jnp.maximum(jnp.linalg.norm(rot) - MAX_ROTATION_STEP, 0.0)
             dist = jnp.linalg.norm(e1)
             move = jnp.clip(dist - ORIENT_FIRST_STANDOFF * left, 0.0, MAX_POSITION_STEP)
             dx = jnp.concatenate([-e1 * (move / jnp.maximum(dist, 1e-12)), turn])
@@ -206,14 +207,13 @@ def pose_step_wrapping(
                 axis = jac[3:, 5] / jnp.maximum(jnp.linalg.norm(jac[3:, 5]), 1e-12)
                 quat = quat_canonical(r[0])
                 goal = q1[5] + 2.0 * jnp.arctan2(-jnp.dot(quat[1:], axis), quat[0])
+                near = jnp.ones((), bool)  # the roll still to turn, wherever the TCP is
             else:
                 full = dls_step(jac, jnp.concatenate([-e1, -rotation_vector(r[0])]))
                 goal = q1[5] + full[5]
+                near = jnp.linalg.norm(e1) < WRAP_NEAR  # far away the Newton step means little
             shift = jnp.where(goal > hi6, -2 * jnp.pi, jnp.where(goal < lo6, 2 * jnp.pi, 0.0))
             other = goal + shift
-            near = jnp.linalg.norm(e1) < WRAP_NEAR  # far away the Newton step means little
-            if orient_first:  # the twist is the roll still to turn wherever the TCP is
-                near = jnp.ones((), bool)
             use = near & (shift != 0.0) & (other >= lo6) & (other <= hi6)
             if orient_first and flag_roll:  # past half a turn, the rest of the long way is
                 # the short way: a roll of the flange is the step's own until it fits in one
