@@ -57,12 +57,13 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--seeds", nargs="+", type=int, default=[0])
     p.add_argument("--set", default="", help="PPOConfig fields changed at inference: 'a=1;b=x'")
     p.add_argument("--training", action="store_true", help="run the trainer's network")
+    p.add_argument("--eval-seed", type=int, default=0, help="EvalConfig.seed: the reset keys")
     p.add_argument("--out", default="")
     args = p.parse_args(argv)
     overrides = parse_variant(args.set) if args.set else {}
     env = mara_mjx.make(args.task)
-    stop = jax.jit(make_evaluate(env, EvalConfig()))
-    hold = jax.jit(make_evaluate(env, EvalConfig(tolerance_mm=0.0)))
+    stop = jax.jit(make_evaluate(env, EvalConfig(seed=args.eval_seed)))
+    hold = jax.jit(make_evaluate(env, EvalConfig(tolerance_mm=0.0, seed=args.eval_seed)))
     rows = []
     for seed in args.seeds:
         policy = load_saved_policy(args.folder, seed, overrides)
@@ -101,6 +102,7 @@ def main(argv: list[str] | None = None) -> None:
                         "task": args.task,
                         "set": overrides,
                         "training": args.training,
+                        "eval_seed": args.eval_seed,
                         "per_seed": rows,
                     },
                     f,
