@@ -31,7 +31,7 @@ from mara_mjx.ppo.evaluation import make_evaluate
 from mara_mjx.ppo.networks import forward, make_network
 
 sys.path.insert(0, os.path.dirname(__file__))
-from orientation_study import parse_variant  # noqa: E402
+from orientation_study import parse_variant, seed_row  # noqa: E402
 from random_target_study import load_saved_policy  # noqa: E402
 
 
@@ -72,16 +72,7 @@ def main(argv: list[str] | None = None) -> None:
                 policy.params, policy.obs_stats, policy.config, policy.action_size
             )
         s, h = jax.device_get(stop(policy)), jax.device_get(hold(policy))
-        row = {
-            "seed": seed,
-            "position_mm": np.mean(s["position_error_mm"], 0).tolist(),
-            "orientation_deg": np.mean(s["orientation_error_deg"], 0).tolist(),
-            "reached": int(np.sum(s["reached"])),
-            "collisions": float(np.mean(s["collisions"])),
-            "hold_position_mm": np.mean(h["position_error_mm"], 0).tolist(),
-            "hold_orientation_deg": np.mean(h["orientation_error_deg"], 0).tolist(),
-            "hold_collisions_per_episode": float(np.mean(h["collisions"])),
-        }
+        row = {"seed": seed, **seed_row(s, h)}
         rows.append(row)
         print(
             f"{args.task} seed {seed}: reached {row['reached']}/10, "

@@ -176,6 +176,20 @@ def save_seed_params(root: str, task: str, variant: str, seed: int, seed_state, 
         pickle.dump(jax.device_get((seed_state.params, seed_state.obs_stats, config.to_dict())), f)
 
 
+def seed_row(stop: dict, hold: dict) -> dict:
+    """One seed's paper evaluation (`stop`, make_evaluate's output for its 10 episodes)
+    and hold (the same episodes to the horizon) as the studies' JSON rows record them."""
+    return {
+        "position_mm": np.mean(stop["position_error_mm"], 0).tolist(),
+        "orientation_deg": np.mean(stop["orientation_error_deg"], 0).tolist(),
+        "reached": int(np.sum(stop["reached"])),
+        "collisions": float(np.mean(stop["collisions"])),
+        "hold_position_mm": np.mean(hold["position_error_mm"], 0).tolist(),
+        "hold_orientation_deg": np.mean(hold["orientation_error_deg"], 0).tolist(),
+        "hold_collisions_per_episode": float(np.mean(hold["collisions"])),
+    }
+
+
 def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
     t0 = time.monotonic()
     env = mara_mjx.make(task)
@@ -231,13 +245,9 @@ def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
         per_seed.append(
             {
                 "seed": s,
-                "position_mm": np.mean(evals["position_error_mm"][i], 0).tolist(),
-                "orientation_deg": np.mean(evals["orientation_error_deg"][i], 0).tolist(),
-                "reached": int(np.sum(evals["reached"][i])),
-                "collisions": float(np.mean(evals["collisions"][i])),
-                "hold_position_mm": np.mean(holds["position_error_mm"][i], 0).tolist(),
-                "hold_orientation_deg": np.mean(holds["orientation_error_deg"][i], 0).tolist(),
-                "hold_collisions_per_episode": float(np.mean(holds["collisions"][i])),
+                **seed_row(
+                    jax.tree.map(lambda x: x[i], evals), jax.tree.map(lambda x: x[i], holds)
+                ),
                 "time_to_5mm_s": first.get((5.0, s), {}).get("time_s"),
                 "time_to_1mm_s": first.get((1.0, s), {}).get("time_s"),
             }

@@ -259,11 +259,14 @@ def make_train(
             mean, log_std, _ = policy(params, stats, env_state.obs)
             sample = mean + jnp.exp(log_std) * jax.random.normal(noise_key, mean.shape)
             probe = t == config.num_steps
-            if config.train_ik_gate_roll:  # the probe measures the saved policy's mean
-                mean_saved = forward(saved, params, stats, env_state.obs, config.obs_clip)[0]
-                action = jnp.where(probe, mean_saved, sample)
-            else:
-                action = jnp.where(probe, mean, sample)
+            probe_mean = mean
+            if config.train_ik_gate_roll:  # the probe measures the saved policy (its step only)
+                probe_mean = jax.lax.cond(
+                    probe,
+                    lambda: forward(saved, params, stats, env_state.obs, config.obs_clip)[0],
+                    lambda: mean,
+                )
+            action = jnp.where(probe, probe_mean, sample)
             env_action = action
             if config.max_joint_step > 0.0:  # samples stay within m of the observed joints
                 q = env_state.obs[..., : action.shape[-1]]
