@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import mara_mjx
-from mara_mjx.ppo.config import PRESETS, EvalConfig
+from mara_mjx.ppo.config import PRESETS, EvalConfig, default_preset
 from mara_mjx.ppo.evaluation import make_evaluate
 from mara_mjx.ppo.policy import make_policy
 from mara_mjx.ppo.train import make_seed_trainer, make_train, take_seed
@@ -197,7 +197,8 @@ def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
     sizes = {"num_envs": 16, "num_steps": 8, "num_minibatches": 4} if args.tiny else {}
     if args.total_timesteps:
         sizes["total_timesteps"] = args.total_timesteps
-    config = PRESETS["default"].replace(**{**sizes, **overrides})  # variant wins
+    preset = default_preset(task) if args.preset == "task" else args.preset
+    config = PRESETS[preset].replace(**{**sizes, **overrides})  # variant wins
     trainer = make_train(env, config, updates_per_call=args.chunk, devices=1)
     config = trainer.config
     st = make_seed_trainer(trainer, seeds)
@@ -255,6 +256,7 @@ def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:
     out = {
         "task": task,
         "variant": variant,
+        "preset": preset,
         "overrides": overrides,
         "config": config.to_dict(),
         "seeds": list(seeds),
@@ -284,6 +286,12 @@ def main():
     p.add_argument("--tasks", nargs="+", default=["MARAOrient", "MARACollisionOrient"])
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3])
     p.add_argument("--variants", nargs="+", default=list(VARIANTS))
+    p.add_argument(
+        "--preset",
+        default="default",
+        choices=["task", *sorted(PRESETS)],
+        help="the PPO preset the variants change; 'task': the train CLI's for each task",
+    )
     p.add_argument("--total-timesteps", type=int, default=0)
     p.add_argument("--chunk", type=int, default=20)
     p.add_argument("--probe-steps", type=int, default=60)

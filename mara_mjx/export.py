@@ -98,7 +98,9 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
             raise ExportError(
                 f"{str(source)!r} was trained with {option}={value!r}, which needs the arm's "
                 "Jacobian (mara_mjx.envs.task_space); .npz/.onnx export supports joint-space "
-                "policies only. Use mara_mjx.ppo.load_policy(checkpoint) in JAX instead"
+                "policies only. Use mara_mjx.ppo.load_policy(checkpoint) in JAX instead, or "
+                "train with --preset default (joint-space; the Orient tasks' default preset, "
+                "orient_first, uses ik_prior)"
             )
 
     env_name, env_config = meta["env_name"], meta["env_config"]

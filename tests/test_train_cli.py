@@ -457,8 +457,8 @@ def test_population_run_trains_checkpoints_and_evaluates(users_env, tmp_path):
 def test_the_preset_follows_the_task_unless_one_is_given():
     """A *RandomTarget env trains with the 'random_target' preset (staggered first
     episodes), an *OrientRandomTarget one with 'random_target_orient' (plus the IK
-    residual recipe), the fixed-target tasks with 'default'; --preset and flags win. No
-    compile."""
+    residual recipe), the fixed Orient tasks with 'orient_first', MARACollision with
+    'staggered' and MARA with 'default'; --preset and flags win. No compile."""
 
     def ppo(*argv):
         return train_cli.resolve(train_cli.build_parser().parse_args([*argv, "--out", "x"])).ppo
@@ -469,10 +469,15 @@ def test_the_preset_follows_the_task_unless_one_is_given():
     assert orient.ik_gate > 0 and orient.ik_wrap and orient.ik_gate_wrap
     assert ppo("--env", "MARACollisionRandomTarget").ik_prior == ""
     assert ppo("--env", "MARAOrientRandomTarget", "--ik_gate", "0.05").ik_gate == 0.05
-    assert ppo("--env", "MARACollisionOrient").stagger_episodes is False
-    first = ppo("--env", "MARAOrient", "--preset", "orient_first")
-    assert first.ik_orient_first and first.train_ik_gate_roll and first.stagger_episodes
-    assert first.total_timesteps == ppo("--env", "MARAOrient").total_timesteps
+    for task in ("MARAOrient", "MARACollisionOrient"):
+        first = ppo("--env", task)
+        assert first == ppo("--env", task, "--preset", "orient_first")
+        assert first.ik_orient_first and first.train_ik_gate_roll and first.stagger_episodes
+        assert first.train_ik_orient_loose and first.ik_prior == "residual"
+        assert first.total_timesteps == ppo("--env", "MARA").total_timesteps
+    assert ppo("--env", "MARAOrient", "--preset", "default").ik_prior == ""
+    assert ppo("--env", "MARACollision") == ppo("--env", "MARA").replace(stagger_episodes=True)
+    assert ppo("--env", "MARA").stagger_episodes is False
     assert ppo("--env", "MARARandomTarget", "--preset", "default").stagger_episodes is False
     flagged = ppo("--env", "MARARandomTarget", "--stagger_episodes", "false")
     assert flagged.stagger_episodes is False
@@ -491,23 +496,30 @@ def test_rate_limit_without_the_real_driver_is_a_clear_error():
     assert plan("--env", "MARA", "--rate_limit", "true", "--driver", "real").eval.rate_limit
 
 
-def test_orient_first_preset_trains_and_its_checkpoint_runs_without_the_training_gate(
+def test_orient_task_default_trains_and_its_checkpoint_runs_without_the_training_rules(
     users_env, tmp_path
 ):
-    """`--preset orient_first` on a fixed Orient task through the CLIs: the run records
-    the training-only roll gate, `evaluate` reads the checkpoint, and the policy a user
-    loads from it runs without the gate (PPOConfig.train_ik_gate_roll)."""
+    """A fixed Orient task with no --preset (orient_first) through the CLIs: the run records
+    the training-only rules (the roll gate, the loose standoff), `evaluate` reads the
+    checkpoint, the policy a user loads from it runs without them, and `export` refuses
+    it with the way out (--preset default) named, writing nothing."""
     from mara_mjx.ppo.policy import make_policy
 
     out = tmp_path / "run"
-    tiny = [*TINY[2:], "--env", "MARAOrient", "--preset", "orient_first", "--tensorboard", "false"]
+    tiny = [*TINY[2:], "--env", "MARAOrient", "--tensorboard", "false"]
     proc = run_module(users_env, "mara_mjx.train", *tiny, "--out", str(out))
     assert proc.returncode == 0, proc.stderr[-4000:]
     ppo = json.loads((out / "config.json").read_text())["ppo"]
     assert ppo["ik_orient_first"] and ppo["train_ik_gate_roll"] and ppo["stagger_episodes"]
+    assert ppo["train_ik_orient_loose"]
     report = tmp_path / "eval.json"
     proc = run_module(users_env, "mara_mjx.evaluate", str(out), "--json", str(report))
     assert proc.returncode == 0, proc.stderr[-4000:]
     assert json.loads(report.read_text())
     policy = make_policy(str(out / CKPT2))
     assert policy.config.train_ik_gate_roll and not policy.network.ik_gate_roll
+    assert policy.config.train_ik_orient_loose and not policy.network.ik_orient_loose
+    exported = tmp_path / "policy.npz"
+    proc = run_module(users_env, "mara_mjx.export", str(out), str(exported))
+    assert proc.returncode != 0 and "--preset default" in proc.stderr, proc.stderr[-2000:]
+    assert not exported.exists()

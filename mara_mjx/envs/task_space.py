@@ -61,12 +61,18 @@ MAX_STEP_JOINT = 0.25
 """pose_step: the most any joint moves (rad) in one step (the step is scaled down whole)."""
 ORIENT_FIRST_STANDOFF = 0.5
 """pose_step(orient_first=True): m of TCP distance kept from the target per rad of rotation
-still to turn after the step's own (0.5: 8.7 mm per degree). To first order the TCP then
-enters a 5 mm box on every axis only with the tool within about a degree; the last
-approach steps can turn the tool again by their second-order effect (one of the poses of
-tests/test_ik_orient_first.py enters with 1.7 deg, with or without orient_first), and
-where the whole step is scaled down to MAX_STEP_JOINT less than MAX_ROTATION_STEP of
-the rotation happens, so the TCP may end a step closer than the standoff implies."""
+still to turn (the angle before the step; 0.5: 8.7 mm per degree), while that angle is
+over ORIENT_FIRST_ALIGNED."""
+ORIENT_FIRST_ALIGNED = 0.02
+"""pose_step(orient_first=True): rad (1.15 deg), the angle below which the TCP closes in
+with no standoff. ORIENT_FIRST_STANDOFF x ORIENT_FIRST_ALIGNED = 1 cm, more than the
+diagonal of the paper's 5 mm box (8.7 mm), so the TCP waits outside the box until the
+tool is within 1.15 deg and then enters in one Newton step of the whole pose, which
+also turns the last 1.15 deg (to second order). A standoff on the angle left after the
+step (the rule of benchmarks/NOTES.md section 26) let the position and the last
+rotation step converge together: the TCP entered the box with the tool's second-order
+error of ~1 deg; a standoff proportional to the angle down to zero makes the TCP glide
+in, entering the box at up to 5 mm per axis (section 27)."""
 WRAP_NEAR = 0.02
 """pose_step(wrap_last=True): m, the TCP distance within which the last joint may be
 taken the long way round (farther, the full Newton step is no estimate of where it ends)."""
@@ -131,6 +137,7 @@ def pose_step(
     quat_err: jax.Array | None = None,
     wrap_last: bool = False,
     orient_first: bool = False,
+    loose: bool = False,
 ) -> jax.Array:
     """One bounded damped-least-squares step of the nominal arm's joints toward the target
     an observation reports: q (..., 6) rad, e (..., 3) = p_tcp - p_target (m), quat_err
@@ -151,10 +158,14 @@ def pose_step(
     With the orientation and `orient_first`, the tool is turned onto the target before
     the TCP closes in, as a peg is aligned before it is inserted: the rotation step is
     as above, and the TCP moves toward the target (at most MAX_POSITION_STEP) but no
-    closer than ORIENT_FIRST_STANDOFF x the angle still left after this step's rotation
-    (never away from it). Once the remaining angle fits in one step the whole pose
-    converges together, so an evaluation that stops at the first step within a position
-    tolerance finds the tool turned onto the target too. With wrap_last as well, the
+    closer than ORIENT_FIRST_STANDOFF x the angle still to turn (never away from it),
+    until the angle is below ORIENT_FIRST_ALIGNED; then the whole pose converges
+    together from 1 cm, so an evaluation that stops at the first step within a position
+    tolerance finds the tool turned onto the target too. With `loose` (training's rule,
+    PPOConfig.train_ik_orient_loose) the standoff is on the angle still left after this
+    step's rotation instead, none once the angle fits in one step: a stochastic policy
+    keeps the tool about a degree off, which the tight rule would answer by holding the
+    TCP off the target for good (benchmarks/NOTES.md section 27). With wrap_last as well, the
     flange's long way round is decided from the roll still to turn (the twist of the
     correction about the last joint's axis) at any distance, and the TCP's position is
     held while the last joint rolls (benchmarks/NOTES.md section 26). Known limit: where
@@ -163,7 +174,7 @@ def pose_step(
     cycle found by a review in a random-pose sweep; not on the fixed targets' poses). No
     gradient flows through it.
     """
-    return pose_step_wrapping(q, e, quat_err, wrap_last, orient_first)[0]
+    return pose_step_wrapping(q, e, quat_err, wrap_last, orient_first, loose=loose)[0]
 
 
 def pose_step_wrapping(
@@ -173,6 +184,7 @@ def pose_step_wrapping(
     wrap_last: bool = False,
     orient_first: bool = False,
     flag_roll: bool = False,
+    loose: bool = False,
 ) -> tuple[jax.Array, jax.Array]:
     """pose_step's dq (..., 6) and whether it takes the last joint the long way round
     (..., bool: always False without quat_err and wrap_last); with orient_first and
@@ -191,9 +203,14 @@ def pose_step_wrapping(
         if r and orient_first:  # turn the tool first: keep off by the angle left
             rot = -rotation_vector(r[0])
             turn = _clip_norm(rot, MAX_ROTATION_STEP)
-            left = jnp.maximum(jnp.linalg.norm(rot) - MAX_ROTATION_STEP, 0.0)
+            angle = jnp.linalg.norm(rot)
+            if loose:  # training: on the angle left after this step (first order)
+                standoff = ORIENT_FIRST_STANDOFF * jnp.maximum(angle - MAX_ROTATION_STEP, 0.0)
+            else:
+                aligned = angle <= ORIENT_FIRST_ALIGNED
+                standoff = jnp.where(aligned, 0.0, ORIENT_FIRST_STANDOFF * angle)
             dist = jnp.linalg.norm(e1)
-            move = jnp.clip(dist - ORIENT_FIRST_STANDOFF * left, 0.0, MAX_POSITION_STEP)
+            move = jnp.clip(dist - standoff, 0.0, MAX_POSITION_STEP)
             dx = jnp.concatenate([-e1 * (move / jnp.maximum(dist, 1e-12)), turn])
         elif r:
             dx = jnp.concatenate([dx, _clip_norm(-rotation_vector(r[0]), MAX_ROTATION_STEP)])

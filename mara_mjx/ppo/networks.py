@@ -70,6 +70,7 @@ class ActorCritic(nn.Module):
     ik_gate_wrap: bool = False
     ik_orient_first: bool = False
     ik_gate_roll: bool = False
+    ik_orient_loose: bool = False
 
     @nn.compact
     def __call__(
@@ -83,7 +84,12 @@ class ActorCritic(nn.Module):
             if raw_obs is None:
                 raise ValueError("ik_prior: the network needs the raw observation")
             ik_step, wrapping = ik_prior_step(
-                raw_obs, self.ik_quat_index, self.ik_wrap, self.ik_orient_first, self.ik_gate_roll
+                raw_obs,
+                self.ik_quat_index,
+                self.ik_wrap,
+                self.ik_orient_first,
+                self.ik_gate_roll,
+                self.ik_orient_loose,
             )
             obs = jnp.concatenate([obs, *(jnp.tanh(ik_step / s) for s in IK_FEATURE_SCALES)], -1)
         mean = MLP(self.hidden_sizes, self.action_size, 0.01, name="actor")(obs)
@@ -130,16 +136,18 @@ def ik_prior_step(
     wrap_last: bool = False,
     orient_first: bool = False,
     flag_roll: bool = False,
+    loose: bool = False,
 ) -> tuple[jax.Array, jax.Array]:
     """The bounded IK step (mara_mjx.envs.task_space.pose_step) toward the pose a MARA
     observation reports: q = obs[:6], e = obs[6:9], quat_err at quat_index (-1: none) ->
     (dq (..., 6), whether it takes the last joint the long way round, or with flag_roll
-    still rolls it by more than a step (...); task_space.pose_step_wrapping)."""
+    still rolls it by more than a step (...); with loose, orient-first's training rule;
+    task_space.pose_step_wrapping)."""
     from mara_mjx.envs.task_space import pose_step_wrapping
 
     quat = raw_obs[..., quat_index : quat_index + 4] if quat_index >= 0 else None
     return pose_step_wrapping(
-        raw_obs[..., :6], raw_obs[..., 6:9], quat, wrap_last, orient_first, flag_roll
+        raw_obs[..., :6], raw_obs[..., 6:9], quat, wrap_last, orient_first, flag_roll, loose
     )
 
 
@@ -161,7 +169,8 @@ def canonical_quat(obs: jax.Array, index: int) -> jax.Array:
 def make_network(config: Any, action_size: int, training: bool = False) -> ActorCritic:
     """The ActorCritic a PPOConfig describes (the one constructor: training, policies and
     checkpoints all build it here). `training`: the trainer's network, with the
-    training-only parts of the config (train_ik_gate_roll); policies run without them."""
+    training-only parts of the config (train_ik_gate_roll, train_ik_orient_loose);
+    policies run without them."""
     return ActorCritic(
         action_size,
         tuple(config.hidden_sizes),
@@ -179,6 +188,7 @@ def make_network(config: Any, action_size: int, training: bool = False) -> Actor
         config.ik_gate_wrap,
         config.ik_orient_first,
         training and config.train_ik_gate_roll,
+        training and config.train_ik_orient_loose,
     )
 
 
