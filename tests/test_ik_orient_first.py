@@ -2,7 +2,8 @@
 
 With an orientation, the orient-first IK step turns the tool as the plain step does
 (at most MAX_ROTATION_STEP) but moves the TCP toward the target only down to
-ORIENT_FIRST_STANDOFF x the angle still to turn, never away, until that angle is below
+ORIENT_FIRST_STANDOFF x the angle still left after this step's rotation, never away, and
+(not with training's loose rule) not within ORIENT_FIRST_HOLD until the angle is below
 ORIENT_FIRST_ALIGNED;
 with wrap_last it decides the flange's long way round from the twist of the correction
 at any distance and holds the TCP while it rolls. Position only, it changes nothing.
@@ -25,8 +26,11 @@ from mara_mjx.envs.arm import load_model
 from mara_mjx.envs.geometry import quat_conj, quat_mul
 from mara_mjx.envs.task_space import (
     MAX_POSITION_STEP,
+    MAX_ROTATION_STEP,
     MAX_STEP_JOINT,
     ORIENT_FIRST_ALIGNED,
+    ORIENT_FIRST_HOLD,
+    ORIENT_FIRST_NEAR,
     ORIENT_FIRST_STANDOFF,
     WRAP_NEAR,
     last_joint_range,
@@ -62,13 +66,13 @@ def _axis_angle(axis, angle: float) -> jax.Array:
 # ------------------------------------------------------------------ one orient-first step
 
 # From POSTURE, targets along each world axis (both signs), each turned about its own axis
-# (the world axes and three skewed ones): a large angle 5 cm away (1 rad: a standoff of
-# 0.5 m, more than the distance), a small one 5 cm away (0.015 rad, below
-# ORIENT_FIRST_ALIGNED: no standoff) and one in between (0.1 rad, 8 cm: a standoff of 5
-# cm, the TCP may close in by 3 cm).
+# (the world axes and three skewed ones): a large angle 5 cm away (1 rad: 0.75 rad left
+# after one step, a standoff of 0.375 m, more than the distance), a small one 5 cm away
+# (0.015 rad, below ORIENT_FIRST_ALIGNED: no standoff) and one in between (0.35 rad, 8 cm:
+# a standoff of 5 cm, the TCP may close in by 3 cm).
 _DIRECTIONS = np.concatenate([np.eye(3), -np.eye(3)])
 _AXES = ((0.3, -0.5, 0.8), (1, 0, 0), (0, 1, 0), (0, 0, 1), (-0.6, 0.2, 0.4), (0.5, 0.5, -0.7))
-LARGE, SMALL, MIDDLE = (1.0, 0.05), (0.015, 0.05), (0.1, 0.08)
+LARGE, SMALL, MIDDLE = (1.0, 0.05), (0.015, 0.05), (0.35, 0.08)
 """(angle rad, distance m) of the three groups of six targets."""
 
 
@@ -104,7 +108,7 @@ def _one_step():
 
 def test_orient_first_keeps_the_tcp_off_while_a_large_angle_is_left():
     """1 rad to turn, 5 cm away: the orient-first step turns the tool (the angle drops)
-    without bringing the TCP closer (0.5 m of standoff; it never moves away either): to
+    without bringing the TCP closer (0.375 m of standoff; it never moves away either): to
     first order (J dq) it moves < 2.5 mm (what the damping leaks from the turn), through
     the FK a few mm (the second order of joint steps of up to MAX_STEP_JOINT; 6 mm at
     most here, 1-2 mm typically). The plain
@@ -112,7 +116,7 @@ def test_orient_first_keeps_the_tcp_off_while_a_large_angle_is_left():
     (dist, angle, out) = jax.tree.map(lambda x: x[0], _one_step())
     np.testing.assert_allclose(dist, LARGE[1], rtol=1e-4)
     np.testing.assert_allclose(angle, LARGE[0], rtol=1e-4)
-    assert ORIENT_FIRST_STANDOFF * LARGE[0] > LARGE[1]
+    assert ORIENT_FIRST_STANDOFF * (LARGE[0] - MAX_ROTATION_STEP) > LARGE[1]
     dq, after, angle_after, linear = out[True]
     assert np.all(linear < 0.0025), linear
     assert np.all(after > dist - 0.008) and np.median(np.abs(after - dist)) < 0.002, after - dist
@@ -134,12 +138,12 @@ def test_orient_first_is_the_plain_step_once_the_tool_is_aligned():
 
 
 def test_orient_first_closes_in_down_to_the_standoff():
-    """0.1 rad to turn, 8 cm away: a standoff of 5 cm, though the angle fits in one
-    step (the standoff is on the angle before the step). The orient-first step closes in
+    """0.35 rad to turn, 8 cm away: 0.1 rad is left after the step, a standoff of 5 cm.
+    The orient-first step closes in
     (by up to 3 cm; less where the step is scaled down to MAX_STEP_JOINT) but not past the
     standoff; the plain step goes past it."""
     dist, _, out = jax.tree.map(lambda x: x[2], _one_step())
-    standoff = ORIENT_FIRST_STANDOFF * MIDDLE[0]
+    standoff = ORIENT_FIRST_STANDOFF * (MIDDLE[0] - MAX_ROTATION_STEP)
     np.testing.assert_allclose(standoff, 0.05, rtol=1e-6)
     after = out[True][1]
     assert np.all(after > standoff - 0.004) and np.all(after < dist - 0.005), after
@@ -259,14 +263,18 @@ def test_orient_first_wrap_closed_loop_reaches_the_pose_holding_the_position_mea
 ):
     """Repeated, the orient-first step turns the flange the long way (several steps, the
     TCP held 10 cm off the whole time) and then reaches the pose: < 1 mm, < 0.5 deg."""
-    first = closed_loop["first"]
-    (e, angle, wrapping), final_dist, final_angle = jax.tree.map(lambda x: x[0], first)
-    dist = np.linalg.norm(e, axis=-1)
-    assert final_dist < 1e-3 and np.degrees(final_angle) < 0.5, (final_dist, final_angle)
-    n = int(np.argmin(wrapping))  # the first step that does not wrap
-    assert n >= 5 and wrapping[:n].all() and not wrapping[n:].any(), wrapping
-    np.testing.assert_allclose(dist[: n + 1], 0.1, atol=1e-3)  # held while it rolls
-    assert np.all(np.diff(angle[:5]) > 0.2)  # the long way: the error grows first
+    for mode in ("first", "loose"):
+        (e, angle, wrapping), final_dist, final_angle = jax.tree.map(
+            lambda x: x[0], closed_loop[mode]
+        )
+        dist = np.linalg.norm(e, axis=-1)
+        assert final_dist < 1e-3 and np.degrees(final_angle) < 0.5, (final_dist, final_angle)
+        n = int(np.argmin(wrapping))  # the first step that does not wrap
+        assert n >= 5 and wrapping[:n].all(), wrapping
+        if mode == "loose":  # the deployed rule's flag is on again within 6 cm
+            assert not wrapping[n:].any(), wrapping
+        np.testing.assert_allclose(dist[: n + 1], 0.1, atol=1e-3)  # held while it rolls
+        assert np.all(np.diff(angle[:5]) > 0.2)  # the long way: the error grows first
 
 
 def test_orient_first_enters_the_position_tolerance_with_the_tool_turned(closed_loop):
@@ -356,18 +364,19 @@ def _roll_case(turn: float) -> tuple[jax.Array, jax.Array, jax.Array]:
 def test_flag_roll_stays_on_while_the_flange_has_more_than_one_step_to_turn():
     """pose_step_wrapping(flag_roll=True) with orient_first and wrap_last: the flag is on
     while the roll to turn exceeds MAX_ROTATION_STEP, though no long way round is taken
-    (a short roll, or the second half of a long one), and only then; dq is unchanged."""
+    (a short roll, or the second half of a long one), and only then; dq is unchanged. (The
+    loose rule, as in training: the tight one also flags its held-off states.)"""
     for turn, expect in ((1.0, True), (-1.0, True), (0.1, False)):
         start, tpos, tquat = _roll_case(turn)
         e, quat_err = _pose_errors(start, tpos, tquat)
-        dq_plain, flag_plain = pose_step_wrapping(start, e, quat_err, True, True)
-        dq_roll, flag_roll = pose_step_wrapping(start, e, quat_err, True, True, True)
+        dq_plain, flag_plain = pose_step_wrapping(start, e, quat_err, True, True, loose=True)
+        dq_roll, flag_roll = pose_step_wrapping(start, e, quat_err, True, True, True, True)
         assert not bool(flag_plain), turn
         assert bool(flag_roll) is expect, turn
         np.testing.assert_array_equal(np.asarray(dq_plain), np.asarray(dq_roll))
     start, tpos, tquat = _roll_case(1.0)  # without orient_first the option does nothing
     e, quat_err = _pose_errors(start, tpos, tquat)
-    assert not bool(pose_step_wrapping(start, e, quat_err, True, False, True)[1])
+    assert not bool(pose_step_wrapping(start, e, quat_err, True, False, True, True)[1])
 
 
 def test_train_ik_gate_roll_is_validated_cleared_and_absent_from_policies(orient):
@@ -401,10 +410,10 @@ def test_train_ik_gate_roll_is_validated_cleared_and_absent_from_policies(orient
 
 
 def test_train_ik_orient_loose_is_validated_cleared_and_absent_from_policies(orient):
-    """Training-only: the trainer's network takes the loose orient-first step (the
-    standoff on the angle left after the step), the saved policy's the tight one. 0.1 rad
-    to turn 5 cm away: the loose step closes in, the tight one holds the TCP 5 cm off
-    (ORIENT_FIRST_STANDOFF x 0.1). Needs ik_orient_first; cleared with it."""
+    """Training-only: the trainer's network takes the loose orient-first step (no hold),
+    the saved policy's the tight one. 0.1 rad to turn (fits in one step) 1.5 cm away: the
+    loose step closes in all the way, the tight one stops at ORIENT_FIRST_HOLD (1 cm)
+    until the tool is aligned. Needs ik_orient_first; cleared with it."""
     with pytest.raises(ValueError, match="train_ik_orient_loose"):
         PPOConfig(relative_actions=True, ik_prior="residual", train_ik_orient_loose=True)
     config = PRESETS["orient_first"]
@@ -417,10 +426,10 @@ def test_train_ik_orient_loose_is_validated_cleared_and_absent_from_policies(ori
     chain = nominal_chain()
     q = jnp.asarray(POSTURE, jnp.float32)
     pos, quat = chain.tcp(q)
-    tpos = pos + jnp.asarray((0.05, 0.0, 0.0), jnp.float32)
+    tpos = pos + jnp.asarray((0.015, 0.0, 0.0), jnp.float32)
     tquat = quat_mul(_axis_angle((0, 0, 1), 0.1), quat)
     e, quat_err = _pose_errors(q, tpos, tquat)
-    assert ORIENT_FIRST_STANDOFF * 0.1 == pytest.approx(float(jnp.linalg.norm(e)), rel=1e-4)
+    assert ORIENT_FIRST_ALIGNED < 0.1 < MAX_ROTATION_STEP and ORIENT_FIRST_HOLD == 0.01
     obs = orient.reset(jax.random.key(0)).obs
     obs = obs.at[:6].set(q).at[6:9].set(e).at[9:13].set(quat_err)
     params = policy_net.init(jax.random.key(3), obs, obs)
@@ -428,4 +437,26 @@ def test_train_ik_orient_loose_is_validated_cleared_and_absent_from_policies(ori
     for name, net in (("trainer", trainer_net), ("policy", policy_net)):
         mean = forward(net, params, None, obs, config.obs_clip)[0]
         moved[name] = float(jnp.linalg.norm(chain.jacobian(q)[:3] @ (mean - q)))
-    assert moved["trainer"] > 0.03 and moved["policy"] < 0.005, moved
+    assert moved["trainer"] > 0.013 and 0.003 < moved["policy"] < 0.007, moved
+
+
+def test_deployed_rule_leaves_the_last_approach_to_the_ik_step():
+    """pose_step_wrapping's flag (the IK step alone: ik_gate_wrap closes the residual's
+    gate) under orient-first's deployed rule is on within ORIENT_FIRST_NEAR (6 cm) of the
+    target position and off beyond, whatever the angle; never under training's loose
+    rule (no wrap here)."""
+    chain = nominal_chain()
+    q = jnp.asarray(POSTURE, jnp.float32)
+    pos, quat = chain.tcp(q)
+    flags = {}
+    for dist in (0.005, 0.05, 0.07, 0.3):
+        for angle in (0.01, 0.3):
+            tpos = pos + jnp.asarray((0.0, dist, 0.0), jnp.float32)
+            tquat = quat_mul(_axis_angle((0.3, -0.5, 0.8), angle), quat)
+            e, r = _pose_errors(q, tpos, tquat)
+            for loose in (False, True):
+                flag = pose_step_wrapping(q, e, r, False, True, loose=loose)[1]
+                flags[dist, angle, loose] = bool(flag)
+    assert ORIENT_FIRST_NEAR == pytest.approx(0.06)
+    for (dist, _, loose), flag in flags.items():
+        assert flag is (not loose and dist < ORIENT_FIRST_NEAR), (dist, loose, flags)

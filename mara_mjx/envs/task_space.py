@@ -61,18 +61,24 @@ MAX_STEP_JOINT = 0.25
 """pose_step: the most any joint moves (rad) in one step (the step is scaled down whole)."""
 ORIENT_FIRST_STANDOFF = 0.5
 """pose_step(orient_first=True): m of TCP distance kept from the target per rad of rotation
-still to turn (the angle before the step; 0.5: 8.7 mm per degree), while that angle is
-over ORIENT_FIRST_ALIGNED."""
+still to turn after the step's own (MAX_ROTATION_STEP): 8.7 mm per degree."""
+ORIENT_FIRST_HOLD = 0.01
+"""pose_step(orient_first=True, loose=False): m, the TCP also stays at least this far from
+the target until the tool is within ORIENT_FIRST_ALIGNED. 1 cm is more than the diagonal
+of the paper's 5 mm box (8.7 mm): the TCP waits outside the box while the last degrees
+turn, then enters in one Newton step of the whole pose."""
 ORIENT_FIRST_ALIGNED = 0.02
-"""pose_step(orient_first=True): rad (1.15 deg), the angle below which the TCP closes in
-with no standoff. ORIENT_FIRST_STANDOFF x ORIENT_FIRST_ALIGNED = 1 cm, more than the
-diagonal of the paper's 5 mm box (8.7 mm), so the TCP waits outside the box until the
-tool is within 1.15 deg and then enters in one Newton step of the whole pose, which
-also turns the last 1.15 deg (to second order). A standoff on the angle left after the
-step (the rule of benchmarks/NOTES.md section 26) let the position and the last
-rotation step converge together: the TCP entered the box with the tool's second-order
-error of ~1 deg; a standoff proportional to the angle down to zero makes the TCP glide
-in, entering the box at up to 5 mm per axis (section 27)."""
+"""pose_step(orient_first=True, loose=False): rad (1.15 deg), the angle below which the TCP
+closes in with no standoff. Without the hold (the loose rule, training's), the last
+rotation step and the approach converge together and the TCP enters the box with the
+tool's second-order error of about a degree (benchmarks/NOTES.md sections 26-27)."""
+ORIENT_FIRST_NEAR = 0.06
+"""pose_step_wrapping(orient_first=True, loose=False): m, within this distance of the target
+position the flag is on (PPOConfig.ik_gate_wrap then closes the residual's gate: the IK
+step alone): a full position step (MAX_POSITION_STEP) plus ORIENT_FIRST_HOLD, so the
+last approach into the tolerance is the Newton step's, not the learnt correction's
+(whose tenth, left by ik_gate at 1 cm, turned the tool by about a degree on entry;
+benchmarks/NOTES.md section 27)."""
 WRAP_NEAR = 0.02
 """pose_step(wrap_last=True): m, the TCP distance within which the last joint may be
 taken the long way round (farther, the full Newton step is no estimate of where it ends)."""
@@ -158,16 +164,18 @@ def pose_step(
     With the orientation and `orient_first`, the tool is turned onto the target before
     the TCP closes in, as a peg is aligned before it is inserted: the rotation step is
     as above, and the TCP moves toward the target (at most MAX_POSITION_STEP) but no
-    closer than ORIENT_FIRST_STANDOFF x the angle still to turn (never away from it),
-    until the angle is below ORIENT_FIRST_ALIGNED; then the whole pose converges
-    together from 1 cm, so an evaluation that stops at the first step within a position
-    tolerance finds the tool turned onto the target too. With `loose` (training's rule,
-    PPOConfig.train_ik_orient_loose) the standoff is on the angle still left after this
-    step's rotation instead, none once the angle fits in one step: a stochastic policy
-    keeps the tool about a degree off, which the tight rule would answer by holding the
-    TCP off the target for good (benchmarks/NOTES.md section 27). With wrap_last as well, the
-    flange's long way round is decided from the roll still to turn (the twist of the
-    correction about the last joint's axis) at any distance, and the TCP's position is
+    closer than ORIENT_FIRST_STANDOFF x the angle still left after this step's rotation,
+    nor than ORIENT_FIRST_HOLD (1 cm) until the angle is below ORIENT_FIRST_ALIGNED (never
+    away from it); then the whole pose converges together from 1 cm, so an evaluation
+    that stops at the first step within a position tolerance finds the tool turned onto
+    the target too (and pose_step_wrapping's flag, on within ORIENT_FIRST_NEAR, leaves
+    that last approach to the IK step alone). With `loose` (training's rule,
+    PPOConfig.train_ik_orient_loose) there is neither: a stochastic policy keeps the tool
+    about a degree off, and the hold would keep the sampled TCP off the target for good
+    (benchmarks/NOTES.md section 27). With
+    wrap_last as well, the flange's long way round is decided from the roll still to
+    turn (the twist of the correction about the last joint's axis) at any distance, and
+    the TCP's position is
     held while the last joint rolls (benchmarks/NOTES.md section 26). Known limit: where
     the last joint's goal lies within a step of its limit near +-pi, the choice between
     the short and the long way can flip from step to step as the other joints move (a
@@ -186,11 +194,13 @@ def pose_step_wrapping(
     flag_roll: bool = False,
     loose: bool = False,
 ) -> tuple[jax.Array, jax.Array]:
-    """pose_step's dq (..., 6) and whether it takes the last joint the long way round
-    (..., bool: always False without quat_err and wrap_last); with orient_first and
-    flag_roll, also while the flange still has more than MAX_ROTATION_STEP of roll to
-    turn (the second half of a long way round looks like a short roll: the flag stays on
-    through it; benchmarks/NOTES.md section 26)."""
+    """pose_step's dq (..., 6) and a flag (..., bool) for where the IK step should act
+    alone (PPOConfig.ik_gate_wrap closes the residual's gate there): where it takes the
+    last joint the long way round (only with quat_err and wrap_last); with orient_first
+    and flag_roll, also while the flange still has more than MAX_ROTATION_STEP of roll
+    to turn (the second half of a long way round looks like a short roll: the flag stays
+    on through it; benchmarks/NOTES.md section 26); with orient_first's deployed rule
+    (not `loose`), within ORIENT_FIRST_NEAR of the target position."""
     chain = nominal_chain()
     lo6, hi6 = last_joint_range()
     wrap = wrap_last and hi6 - lo6 >= 2 * jnp.pi - 0.01
@@ -200,16 +210,18 @@ def pose_step_wrapping(
     def one(q1: jax.Array, e1: jax.Array, *r: jax.Array) -> tuple[jax.Array, jax.Array]:
         jac = chain.jacobian(q1)
         dx = _clip_norm(-e1, MAX_POSITION_STEP)
+        alone = jnp.zeros((), bool)
         if r and orient_first:  # turn the tool first: keep off by the angle left
             rot = -rotation_vector(r[0])
             turn = _clip_norm(rot, MAX_ROTATION_STEP)
             angle = jnp.linalg.norm(rot)
-            if loose:  # training: on the angle left after this step (first order)
-                standoff = ORIENT_FIRST_STANDOFF * jnp.maximum(angle - MAX_ROTATION_STEP, 0.0)
-            else:
-                aligned = angle <= ORIENT_FIRST_ALIGNED
-                standoff = jnp.where(aligned, 0.0, ORIENT_FIRST_STANDOFF * angle)
             dist = jnp.linalg.norm(e1)
+            # training's rule: on the angle left after this step (first order)
+            standoff = ORIENT_FIRST_STANDOFF * jnp.maximum(angle - MAX_ROTATION_STEP, 0.0)
+            if not loose:  # and never closer than ORIENT_FIRST_HOLD until aligned
+                floor = jnp.maximum(standoff, ORIENT_FIRST_HOLD)
+                standoff = jnp.where(angle <= ORIENT_FIRST_ALIGNED, 0.0, floor)
+                alone = dist < ORIENT_FIRST_NEAR
             move = jnp.clip(dist - standoff, 0.0, MAX_POSITION_STEP)
             dx = jnp.concatenate([-e1 * (move / jnp.maximum(dist, 1e-12)), turn])
         elif r:
@@ -245,7 +257,9 @@ def pose_step_wrapping(
                 dq = jnp.where(use, held, dq)
             dq = dq.at[5].set(jnp.where(use, long_way, dq[5]))
         big = jnp.max(jnp.abs(dq))
-        return dq * jnp.minimum(1.0, MAX_STEP_JOINT / jnp.maximum(big, 1e-12)), use | rolling
+        return dq * jnp.minimum(
+            1.0, MAX_STEP_JOINT / jnp.maximum(big, 1e-12)
+        ), use | rolling | alone
 
     if rot is None:
         return jnp.vectorize(one, signature="(6),(3)->(6),()")(q, e)

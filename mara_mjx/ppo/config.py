@@ -135,22 +135,24 @@ class PPOConfig(_ConfigMixin):
     cycle measured in benchmarks/NOTES.md section 24)."""
     ik_orient_first: bool = False
     """With ik_prior and an orientation in the task: the IK step turns the tool onto the
-    target before the TCP closes in (the TCP keeps 0.5 m per rad of rotation still to
-    turn from the target until the tool is within 0.02 rad, then closes in from 1 cm, as
-    a peg is aligned before insertion); with ik_wrap it decides
-    the flange's long way round from the roll still to turn, at any distance, and holds
-    the TCP's position while it rolls (envs/task_space.pose_step orient_first;
+    target before the TCP closes in, as a peg is aligned before insertion (the TCP keeps
+    0.5 m per rad of rotation left after the step's own from the target, and 1 cm until
+    the tool is within 0.02 rad); with ik_wrap it decides the flange's long way round from
+    the roll still to turn, at any distance, and holds the TCP's position while it rolls;
+    with ik_gate_wrap, within 6 cm of the target the correction is off and the IK step
+    alone makes the last approach (envs/task_space.pose_step orient_first;
     benchmarks/NOTES.md sections 26-27). For an evaluation that stops at the first step
-    within a position tolerance, as the paper's; the env is unchanged."""
+    within a position tolerance, as the paper's; the env is unchanged.
+    train_ik_orient_loose keeps the 1-cm hold and the 6-cm zone out of training."""
     train_ik_orient_loose: bool = False
-    """During training only, with ik_orient_first: the TCP's standoff is on the angle
-    still left after the IK step's rotation (none once it fits in one step, 0.25 rad)
-    instead of the angle itself down to 0.02 rad. The exploration noise keeps the tool
-    about a degree off the target, so under the tight rule the sampled TCP never closes
-    in and nothing is learnt (benchmarks/NOTES.md section 27: 10 of 20 seed-runs trained
-    with it never reached 5 mm); the saved, deterministic policy runs the tight rule,
-    which enters the paper's 5 mm box with the tool turned (policies trained with this
-    loose rule, evaluated with the tight one: every seed 10/10, <= 0.9 deg)."""
+    """During training only, with ik_orient_first: the IK step's loose form, without the
+    1-cm hold until the tool is aligned and without the IK-alone zone near the target.
+    The exploration noise keeps the tool about a degree off the target, so under a
+    standoff that lasts until 0.02 rad the sampled TCP does not close in and little is
+    learnt (benchmarks/NOTES.md section 27: trained with an earlier form, a standoff of
+    0.5 m per rad down to 0.02 rad, 17 of 20 seed-runs reached 5 mm in at most 3 of 10
+    episodes; the present form was not trained with); the saved, deterministic policy
+    runs the full rule, which enters the paper's 5 mm box with the tool turned."""
     train_ik_gate_roll: bool = False
     """During training only, with ik_gate_wrap and ik_orient_first: the gate is also closed
     while the IK step's flange roll still exceeds one step (0.25 rad), so that the second
