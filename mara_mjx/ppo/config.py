@@ -643,10 +643,12 @@ PRESETS["random_target_orient"] = PRESETS["random_target"].replace(
 # before the TCP closes in (ik_orient_first), staggered episodes (the synchronised
 # 1,024-step episodes otherwise let the converged policies drift) and two training-only
 # rules (the roll gate, and the standoff's loose form that a stochastic policy can meet).
-# Measured, 10 seeds per task: every seed 10/10 at the paper's 5-mm stop, worst 1.13 /
-# 0.56 / 1.55 deg (MARACollisionOrient) and 0.65 / 0.54 / 1.01 deg (MARAOrient), position
-# worst 2.06 mm. On a position task for_env clears the orientation parts: what is left
-# (the IK residual and stagger) was measured worse than the default on MARACollision.
+# Measured, 10 seeds per task, the paper's episodes and another set: every seed 10/10
+# at the paper's 5-mm stop, orientation worst 1.14 deg (0.02 on the paper's episodes),
+# position worst 0.74 mm, every hold exact (benchmarks/results/paper_table/README.md;
+# the policies need the arm's Jacobian: no .npz/.onnx export). On a position task
+# for_env clears the orientation parts: what is left (the IK residual and stagger) was
+# measured worse than the default on MARACollision.
 PRESETS["orient_first"] = PRESETS["random_target_orient"].replace(
     total_timesteps=PRESETS["default"].total_timesteps,
     ik_orient_first=True,
