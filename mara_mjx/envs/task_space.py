@@ -172,11 +172,10 @@ def pose_step(
     that last approach to the IK step alone). With `loose` (training's rule,
     PPOConfig.train_ik_orient_loose) there is neither: a stochastic policy keeps the tool
     about a degree off, and the hold would keep the sampled TCP off the target for good
-    (benchmarks/NOTES.md section 27). With
-    wrap_last as well, the flange's long way round is decided from the roll still to
-    turn (the twist of the correction about the last joint's axis) at any distance, and
-    the TCP's position is
-    held while the last joint rolls (benchmarks/NOTES.md section 26). Known limit: where
+    (benchmarks/NOTES.md section 27). With wrap_last as well, the flange's long way round
+    is decided from the roll still to turn (the twist of the correction about the last
+    joint's axis) at any distance, and the TCP's position is held while the last joint
+    rolls (benchmarks/NOTES.md section 26). Known limit: where
     the last joint's goal lies within a step of its limit near +-pi, the choice between
     the short and the long way can flip from step to step as the other joints move (a
     cycle found by a review in a random-pose sweep; not on the fixed targets' poses). No
