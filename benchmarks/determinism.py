@@ -3,7 +3,7 @@
     python benchmarks/determinism.py --out $OUT/determinism        # on a GPU, ~3-4 min
 
 Runs the default preset's PPO (the program of `python -m mara_mjx.train --env
-MARACollisionOrient`: 2048 envs x 32 steps, `make_train`) in fresh processes under
+MARACollisionOrient --preset default`: 2048 envs x 32 steps, `make_train`) in fresh processes under
 several XLA_FLAGS settings (`--settings`, default nondet, noautotune, det; see SETTINGS).
 Each process compiles `trainer.run`, runs `--calls` calls of `--updates` updates from
 seed 0 (the first call also compiles), timing the later ones (env steps/s), hashes the

@@ -14,9 +14,10 @@ the training run's). FILE[:PICKS] picks results of a file (indices into its resu
 variant names, comma separated). A task's seeds are gathered over the files in order (a
 seed already taken is not taken again); its preset and overrides are the first file's.
 Time to X mm: from the start of the task's study (env built, compile included; the
-Python imports, ~3 s, not), the first probe (deterministic policy, the study's --probe-steps from the reset, mean of
-4 episodes) with every axis below X; studies without a per-seed probe timeline give
-their training metric's time instead (det_error_mm).
+Python imports, ~3 s, not), the first probe (deterministic policy, the study's
+--probe-steps from the reset, mean of 4 episodes) with every axis below X; studies
+without a per-seed probe timeline give their training metric's time instead
+(det_error_mm). The usage example: results/paper_table/make_readme.sh.
 """
 
 from __future__ import annotations
@@ -131,7 +132,7 @@ def main(specs: list[str]) -> None:
             fmt(ori.max(0)) if orient else "",
             fmt(PAPER[task][1]) if orient else "",
             fmt(hold.max(0)) if orient else "",
-            f"{max(s['hold_collisions_per_episode'] for s in ps):.0f}",
+            f"{max(s['hold_collisions_per_episode'] for s in ps):g}",
             median_time([s["t5"] for s in ps]),
             median_time([s["t1"] for s in ps]),
         ]
@@ -149,7 +150,8 @@ def main(specs: list[str]) -> None:
             lines.append(
                 f"- {task} seed {s['seed']}: position {fmt(s['position_mm'])}; orientation "
                 f"{fmt(s['orientation_deg'])}; reached {s['reached']}/10; hold collisions per "
-                f"episode {s['hold_collisions_per_episode']:.0f}; 5 mm at {t5}, 1 mm at {t1}"
+                f"episode {s['hold_collisions_per_episode']:g} (before the stop "
+                f"{s['collisions']:g}); 5 mm at {t5}, 1 mm at {t1}"
             )
     print("\n".join(lines))
 

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The four tasks with the default preset (README "Training" table; issue 3).
-#   python -m mara_mjx.train --env TASK --out OUT/TASK --progress false   (seed 0, 5e7 steps)
+#   python -m mara_mjx.train --env TASK --preset default --out OUT/TASK --progress false
+#   (seed 0, 5e7 steps; --preset default since each task has its own preset now)
 # then benchmarks/hold_trace.py on every run (does the policy stay at the target; the
 # paper's evaluation run to the horizon).
 # Usage: bash benchmarks/ppo_final.sh OUT_DIR [TASK ...]
@@ -8,7 +9,7 @@ set -u
 out=${1:-/tmp/ppo_final}; shift || true
 tasks=${*:-MARA MARAOrient MARACollision MARACollisionOrient}
 for task in $tasks; do
-  timeout 150 python3 -m mara_mjx.train --env "$task" --out "$out/$task" --progress false \
+  timeout 150 python3 -m mara_mjx.train --env "$task" --preset default --out "$out/$task" --progress false \
     --checkpoint_every 100000 2>&1 | grep -E "time to|reached the tolerance|\| MARA|steps/s"
   echo "== $task done"
 done

@@ -1,6 +1,8 @@
 """The IK step alone (no policy) from the reset pose of a fixed-target task (issue 11):
 where the TCP first enters the paper's 5 mm box and with what orientation error, with and
-without `orient_first` (envs/task_space.pose_step; benchmarks/NOTES.md section 26).
+without `orient_first` (envs/task_space.pose_step; benchmarks/NOTES.md section 26). It
+traces the deployed orient-first rule as committed (section 27's hold included), so
+section 26's numbers, made with what is now the loose form, do not reproduce exactly.
 
     python benchmarks/pure_ik_trace.py --task MARACollisionOrient [--orient-first] [--steps 120]
 

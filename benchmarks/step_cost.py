@@ -15,7 +15,8 @@ one step launches). Variants isolate the pieces:
   reset          vmap(env.reset): noise draw, kinematics, observation, metrics
   env_step       vmap(env.step) (lean_check.py's `time` mode, without its random actions)
   env_step_core  the same with the metrics dropped from the output (XLA prunes their work)
-  auto_reset     BatchedEnv.auto_reset alone: key split, every env's reset, the selects
+  auto_reset     BatchedEnv.auto_reset alone (only with the elementwise patch of
+                 results/lean/, which made it a method; not adopted: NOTES section 27)
   batched        BatchedEnv.step: env_step + auto_reset + episode statistics, what the
                  PPO rollout calls each step
   random_actions the benchmark's uniform draw of (envs, 6) actions

@@ -49,7 +49,7 @@ Studies:
 
   tta   time to accuracy from command start, as users see it: for each of `--seeds`
         (default 0 1 2) the train CLI (`python -m mara_mjx.train --env TASK --seed S`,
-        default preset, MARACollisionOrient) as a fresh process, cold (an empty
+        MARACollisionOrient, the task's preset unless `--preset`) as a fresh process, cold (an empty
         compilation-cache folder) and warm (the same folder again): seconds from
         launching it to a deterministic mean per-axis error below 5 mm and 1 mm, the
         whole command, env steps/s, a hash of the final state; medians over seeds. Then

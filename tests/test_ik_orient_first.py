@@ -271,8 +271,11 @@ def test_orient_first_wrap_closed_loop_reaches_the_pose_holding_the_position_mea
         assert final_dist < 1e-3 and np.degrees(final_angle) < 0.5, (final_dist, final_angle)
         n = int(np.argmin(wrapping))  # the first step that does not wrap
         assert n >= 5 and wrapping[:n].all(), wrapping
-        if mode == "loose":  # the deployed rule's flag is on again within 6 cm
+        if mode == "loose":
             assert not wrapping[n:].any(), wrapping
+        else:  # the deployed rule's flag is on again within 6 cm, to the end
+            near = dist[n:] < ORIENT_FIRST_NEAR
+            assert near.any() and np.array_equal(wrapping[n:], near), (wrapping, dist)
         np.testing.assert_allclose(dist[: n + 1], 0.1, atol=1e-3)  # held while it rolls
         assert np.all(np.diff(angle[:5]) > 0.2)  # the long way: the error grows first
 
@@ -315,10 +318,16 @@ def test_orient_first_loose_rule_enters_turned_less_exactly(closed_loop):
 # ------------------------------------------------------------ PPOConfig.ik_orient_first
 
 
+GATED = dict(relative_actions=True, ik_prior="residual", ik_gate=0.1, ik_wrap=True)
+"""The gated IK residual ik_orient_first needs (with ik_gate_wrap)."""
+
+
 def test_ik_orient_first_config_is_validated_and_cleared_for_a_position_only_task():
     with pytest.raises(ValueError, match="ik_orient_first"):
         PPOConfig(ik_orient_first=True)
-    config = PPOConfig(relative_actions=True, ik_prior="residual", ik_orient_first=True)
+    with pytest.raises(ValueError, match="ik_gate_wrap=False"):
+        PPOConfig(**GATED, ik_orient_first=True)
+    config = PPOConfig(**GATED, ik_gate_wrap=True, ik_orient_first=True)
     assert for_env(config, mara_mjx.make("MARACollision")).ik_orient_first is False
     orient = for_env(config, mara_mjx.make("MARACollisionOrient"))
     assert orient.ik_orient_first is True and orient.quat_index == 9
@@ -334,15 +343,13 @@ def test_ik_orient_first_network_takes_the_orient_first_ik_step(orient):
     batch = jnp.stack([obs, obs.at[:6].set(jnp.array([0.3, -0.4, 0.8, 0.1, 0.9, -0.2]))])
     steps, means = {}, {}
     for first in (False, True):
-        config = for_env(
-            PPOConfig(relative_actions=True, ik_prior="residual", ik_orient_first=first), env
-        )
+        config = for_env(PPOConfig(**GATED, ik_gate_wrap=True, ik_orient_first=first), env)
         assert config.ik_orient_first is first
         network = make_network(config, 6)
         assert network.ik_orient_first is first
         params = network.init(jax.random.key(3), batch[0], batch[0])
         means[first] = np.asarray(forward(network, params, None, batch, config.obs_clip)[0])
-        steps[first] = np.asarray(ik_prior_step(batch, 9, False, first)[0])
+        steps[first] = np.asarray(ik_prior_step(batch, 9, True, first)[0])
     assert np.isfinite(means[True]).all()
     step_change = steps[True] - steps[False]
     assert np.abs(step_change).max() > 0.02, step_change
@@ -402,24 +409,29 @@ def test_train_ik_gate_roll_is_validated_cleared_and_absent_from_policies(orient
     assert not make_policy(params, config.replace(normalize_obs=False)).network.ik_gate_roll
     # a correction the fresh actor would not make: the output layer's bias set to 0.3 rad
     params["params"]["actor"]["Dense_2"]["bias"] = jnp.full(6, 0.3)
-    ik = np.asarray(ik_prior_step(obs, 9, True, True, True)[0])
+    ik = np.asarray(ik_prior_step(obs, 9, True, True, True, True)[0])
     train_mean = np.asarray(forward(trainer_net, params, None, obs, config.obs_clip)[0])
     policy_mean = np.asarray(forward(policy_net, params, None, obs, config.obs_clip)[0])
     np.testing.assert_allclose(train_mean - np.asarray(start), ik, atol=1e-5)
     assert np.abs(policy_mean - train_mean).min() > 0.1  # the gated 0.3 rad correction
 
 
-def test_train_ik_orient_loose_is_validated_cleared_and_absent_from_policies(orient):
-    """Training-only: the trainer's network takes the loose orient-first step (no hold),
-    the saved policy's the tight one. 0.1 rad to turn (fits in one step) 1.5 cm away: the
-    loose step closes in all the way, the tight one stops at ORIENT_FIRST_HOLD (1 cm)
-    until the tool is aligned. Needs ik_orient_first; cleared with it."""
-    with pytest.raises(ValueError, match="train_ik_orient_loose"):
-        PPOConfig(relative_actions=True, ik_prior="residual", train_ik_orient_loose=True)
+def test_train_ik_orient_loose_is_the_default_and_absent_from_policies(orient):
+    """Training-only, on by default (a config saved before the field existed trains as it
+    did): the trainer's network takes the loose orient-first step (no hold), the saved
+    policy's the deployed one. 0.1 rad to turn (fits in one step) 1.5 cm away: the loose
+    step closes in all the way, the deployed one stops at ORIENT_FIRST_HOLD (1 cm) until
+    the tool is aligned. With the option off the trainer's network is the deployed one.
+    ik_orient_first needs the gated residual (its last approach acts through the gate)."""
+    with pytest.raises(ValueError, match="ik_orient_first=true changes the IK step"):
+        PPOConfig(relative_actions=True, ik_prior="features", ik_orient_first=True)
     config = PRESETS["orient_first"]
-    assert config.train_ik_orient_loose
-    assert not for_env(config, mara_mjx.make("MARA")).train_ik_orient_loose
+    assert config.train_ik_orient_loose and PPOConfig().train_ik_orient_loose
+    old = {k: v for k, v in config.to_dict().items() if k != "train_ik_orient_loose"}
+    assert PPOConfig.from_dict(old).train_ik_orient_loose
     config = for_env(config, orient.env)
+    strict = make_network(config.replace(train_ik_orient_loose=False), 6, training=True)
+    assert not strict.ik_orient_loose
     trainer_net, policy_net = make_network(config, 6, training=True), make_network(config, 6)
     assert trainer_net.ik_orient_loose and not policy_net.ik_orient_loose
 

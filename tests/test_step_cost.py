@@ -69,7 +69,7 @@ def test_batched_lean_step_matches_one_env_at_a_time_across_auto_resets():
     want = [np.stack(w).reshape((N, T) + np.shape(w[0])).swapaxes(0, 1) for w in want]
 
     obs, final_obs, reward, done, collided, steps, key_data = range(7)
-    assert done and want[done].sum() == N * (T // HORIZON)  # the rollout crosses resets
+    assert want[done].sum() == N * (T // HORIZON)  # the rollout crosses resets
     assert 0 < want[collided].sum() < N * T  # and collides
     for k in (done, collided, steps, key_data):
         np.testing.assert_array_equal(got[k], want[k])

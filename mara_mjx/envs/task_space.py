@@ -33,8 +33,9 @@ With wrap_last (and an orientation), the last joint (the tool flange's roll, ran
 full turn) is taken the long way round where the short way would end past its limit: the
 same tool pose, 2 pi of that joint away, as a local step would otherwise stop at the
 limit (benchmarks/NOTES.md section 24). With orient_first the tool is turned onto the
-target before the TCP closes in (for an evaluation that stops at the first step within a
-position tolerance; benchmarks/NOTES.md section 26).
+target before the TCP closes in, and the last approach is the IK step's alone (for an
+evaluation that stops at the first step within a position tolerance; training runs its
+loose form; benchmarks/NOTES.md sections 26-27).
 """
 
 from __future__ import annotations

@@ -132,7 +132,9 @@ class PPOConfig(_ConfigMixin):
     """With ik_gate and ik_wrap: the gate is also closed (the IK step alone) while the IK
     step turns the last joint the long way round, a manoeuvre of up to 2 pi over tens of
     steps that a correction learnt mostly elsewhere otherwise undoes halfway (a limit
-    cycle measured in benchmarks/NOTES.md section 24)."""
+    cycle measured in benchmarks/NOTES.md section 24); with ik_orient_first, also where
+    the IK step's flag asks for it (train_ik_gate_roll's rolls; the deployed policy's
+    last 6 cm, envs/task_space.ORIENT_FIRST_NEAR)."""
     ik_orient_first: bool = False
     """With ik_prior and an orientation in the task: the IK step turns the tool onto the
     target before the TCP closes in, as a peg is aligned before insertion (the TCP keeps
@@ -143,16 +145,21 @@ class PPOConfig(_ConfigMixin):
     alone makes the last approach (envs/task_space.pose_step orient_first;
     benchmarks/NOTES.md sections 26-27). For an evaluation that stops at the first step
     within a position tolerance, as the paper's; the env is unchanged.
-    train_ik_orient_loose keeps the 1-cm hold and the 6-cm zone out of training."""
-    train_ik_orient_loose: bool = False
-    """During training only, with ik_orient_first: the IK step's loose form, without the
-    1-cm hold until the tool is aligned and without the IK-alone zone near the target.
-    The exploration noise keeps the tool about a degree off the target, so under a
-    standoff that lasts until 0.02 rad the sampled TCP does not close in and little is
-    learnt (benchmarks/NOTES.md section 27: trained with an earlier form, a standoff of
-    0.5 m per rad down to 0.02 rad, 17 of 20 seed-runs reached 5 mm in at most 3 of 10
-    episodes; the present form was not trained with); the saved, deterministic policy
-    runs the full rule, which enters the paper's 5 mm box with the tool turned."""
+    train_ik_orient_loose (on by default) keeps the hold and the 6-cm zone out of
+    training. Needs ik_prior='residual' with ik_gate_wrap (the zone acts through its
+    gate)."""
+    train_ik_orient_loose: bool = True
+    """With ik_orient_first, during training only: the IK step's loose form, without the
+    1-cm hold until the tool is aligned and without the IK-alone zone near the target
+    (the form every orient-first policy so far was trained with; a config saved before
+    the field existed reads true). The exploration noise keeps the tool about a degree
+    off the target, so under a standoff that lasts until 0.02 rad the sampled TCP does
+    not close in and little is learnt (benchmarks/NOTES.md section 27: trained with an
+    earlier strict form, a standoff of 0.5 m per rad down to 0.02 rad, 17 of 20 seed-runs
+    reached 5 mm in at most 3 of 10 episodes; false, training with the present deployed
+    form, is unmeasured). The saved, deterministic policy always runs the deployed form,
+    which enters the paper's 5 mm box with the tool turned. No effect without
+    ik_orient_first."""
     train_ik_gate_roll: bool = False
     """During training only, with ik_gate_wrap and ik_orient_first: the gate is also closed
     while the IK step's flange roll still exceeds one step (0.25 rad), so that the second
@@ -355,15 +362,13 @@ class PPOConfig(_ConfigMixin):
                 f"ik_orient_first, but ik_gate_wrap={self.ik_gate_wrap}, "
                 f"ik_orient_first={self.ik_orient_first}; set both, or train_ik_gate_roll=false"
             )
-        if self.train_ik_orient_loose and not self.ik_orient_first:
+        if self.ik_orient_first and not (self.ik_prior == "residual" and self.ik_gate_wrap):
             raise ValueError(
-                "train_ik_orient_loose=true changes the training rule of ik_orient_first, "
-                "which is off; set ik_orient_first=true, or train_ik_orient_loose=false"
-            )
-        if self.ik_orient_first and not self.ik_prior:
-            raise ValueError(
-                "ik_orient_first=true changes the IK step of ik_prior, which is off; "
-                "set ik_prior='features' or 'residual', or ik_orient_first=false"
+                "ik_orient_first=true changes the IK step of ik_prior='residual' and leaves "
+                "the last approach to it through ik_gate_wrap's gate, but "
+                f"ik_prior={self.ik_prior!r}, ik_gate_wrap={self.ik_gate_wrap}; set "
+                "ik_prior='residual' with ik_gate > 0, ik_wrap and ik_gate_wrap (as "
+                "--preset orient_first), or ik_orient_first=false"
             )
         if self.ik_wrap and not self.ik_prior:
             raise ValueError(
@@ -446,8 +451,8 @@ def for_env(config: PPOConfig, env: Any) -> PPOConfig:
     `observation_layout` (a list of {name, start, stop, ...}; -1 where it has no
     quat_err), `train_reward` and `train_collision_penalty` cleared for an env whose
     params have no `reward`, `train_reset_noise` for one without `reset_noise`, and
-    `orientation_bonus`, `ik_wrap`, `ik_gate_wrap`, `ik_orient_first`,
-    `train_ik_gate_roll` and `train_ik_orient_loose` for one without quat_err."""
+    `orientation_bonus`, `ik_wrap`, `ik_gate_wrap`, `ik_orient_first` and
+    `train_ik_gate_roll` for one without quat_err."""
     layout = getattr(env, "observation_layout", None) or []
     starts = [int(part["start"]) for part in layout if part.get("name") == "quat_err"]
     index = starts[0] if ((config.canonical_quat or config.ik_prior) and starts) else -1
@@ -468,11 +473,9 @@ def for_env(config: PPOConfig, env: Any) -> PPOConfig:
         resolved = resolved.replace(train_reset_noise=0.0)
     if not starts and resolved.orientation_bonus > 0.0:  # no orientation in the task
         resolved = resolved.replace(orientation_bonus=0.0)
-    if not starts and resolved.ik_wrap:  # no tool roll to wrap in a position-only task
-        resolved = resolved.replace(ik_wrap=False, ik_gate_wrap=False, train_ik_gate_roll=False)
-    if not starts and resolved.ik_orient_first:  # no orientation to turn first
+    if not starts and resolved.ik_wrap:  # no tool roll to wrap, nothing to turn first
         resolved = resolved.replace(
-            ik_orient_first=False, train_ik_gate_roll=False, train_ik_orient_loose=False
+            ik_wrap=False, ik_gate_wrap=False, ik_orient_first=False, train_ik_gate_roll=False
         )
     return resolved
 
@@ -653,7 +656,6 @@ PRESETS["orient_first"] = PRESETS["random_target_orient"].replace(
     total_timesteps=PRESETS["default"].total_timesteps,
     ik_orient_first=True,
     train_ik_gate_roll=True,
-    train_ik_orient_loose=True,
 )
 
 
