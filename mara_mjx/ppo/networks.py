@@ -188,7 +188,7 @@ def make_network(config: Any, action_size: int, training: bool = False) -> Actor
         config.ik_gate_wrap,
         config.ik_orient_first,
         training and config.train_ik_gate_roll,
-        training and config.train_ik_orient_loose,
+        training and config.ik_orient_first and config.train_ik_orient_loose,
     )
 
 

@@ -260,8 +260,8 @@ def make_train(
             sample = mean + jnp.exp(log_std) * jax.random.normal(noise_key, mean.shape)
             probe = t == config.num_steps
             probe_mean = mean
-            if config.train_ik_gate_roll or config.ik_orient_first:  # the probe measures the
-                # saved policy (its step only; training's orient-first form is loose)
+            if network != saved:  # training-only parts: the probe measures the saved
+                # policy (its step only)
                 probe_mean = jax.lax.cond(
                     probe,
                     lambda: forward(saved, params, stats, env_state.obs, config.obs_clip)[0],
