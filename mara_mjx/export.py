@@ -4,6 +4,7 @@ an ONNX model (the suffix chooses).
     python -m mara_mjx.export runs/MARA-.../ OUT.npz        # newest checkpoint of a run
     python -m mara_mjx.export runs/MARA-.../checkpoints/ckpt_00000100.npz OUT.npz
     python -m mara_mjx.export runs/MARA-.../ OUT.onnx       # ONNX (pip install ".[onnx]")
+    python -m mara_mjx.export runs/MARA-.../ OUT.npz --drop-ik-finish   # MARA's preset
 
     from mara_mjx.export import load_exported
     policy = load_exported("OUT.npz")
@@ -28,6 +29,8 @@ File layout (`np.load(path)`; no pickles):
                        hidden_sizes, activation, normalize_obs, obs_clip, obs_var_eps,
                        relative_actions (add obs[..., :action_size] to the MLP output),
                        max_joint_step (> 0: the MLP output d becomes m tanh(d / m) first),
+                       ik_finish_dropped (m; > 0: the checkpoint's IK finish within that
+                       distance of the target is not in this file: --drop-ik-finish),
                        hidden_obs (indices set to 0 after normalisation),
                        quat_index (-1, or where the sign-canonicalised quaternion starts),
                        observation_layout [{name, start, stop, units, description}],
@@ -59,11 +62,15 @@ class ExportError(ValueError):
     """A missing or corrupt checkpoint or exported file, or an output that cannot be written."""
 
 
-def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) -> Path:
+def export_policy(
+    checkpoint: str | os.PathLike, out_path: str | os.PathLike, drop_ik_finish: bool = False
+) -> Path:
     """Write the deterministic policy of `checkpoint` (a checkpoint file, or a run folder:
     its newest checkpoint) to `out_path`, atomically: .npz (numpy) or .onnx (an ONNX
-    model, needs the `onnx` package). Raises ExportError (or mara_mjx.ppo.CheckpointError,
-    also a ValueError) with what is wrong."""
+    model, needs the `onnx` package). A policy with an IK finish (PPOConfig.ik_finish, the
+    MARA preset's) is refused unless `drop_ik_finish`: then the learnt policy alone is
+    written (the meta's ik_finish_dropped says so). Raises ExportError (or
+    mara_mjx.ppo.CheckpointError, also a ValueError) with what is wrong."""
     import mara_mjx
     from mara_mjx import runs
     from mara_mjx.envs.arm import JOINTS
@@ -103,6 +110,16 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
                 "orient_first, uses ik_prior)"
             )
 
+    finish = float(getattr(config, "ik_finish", 0.0))
+    if finish > 0.0 and not drop_ik_finish:
+        raise ExportError(
+            f"{str(source)!r} ends its reach with an IK finish (ik_finish={finish} m), which "
+            "needs the arm's Jacobian (mara_mjx.envs.task_space.finish_step); .npz/.onnx "
+            "carry the learnt joint-space policy only. Pass --drop-ik-finish to export it "
+            "without the finish (its last step into a 5 mm box then lands a few mm off: "
+            "README, Training), or use mara_mjx.ppo.load_policy(checkpoint) in JAX"
+        )
+
     env_name, env_config = meta["env_name"], meta["env_config"]
     try:
         overrides = {**runs.env_overrides(env_config), "check_target": False}
@@ -141,6 +158,7 @@ def export_policy(checkpoint: str | os.PathLike, out_path: str | os.PathLike) ->
         "obs_var_eps": OBS_VAR_EPS,
         "relative_actions": bool(config.relative_actions),
         "max_joint_step": float(getattr(config, "max_joint_step", 0.0)),
+        "ik_finish_dropped": finish,
         "hidden_obs": [int(i) for i in config.hidden_obs],
         "quat_index": int(config.quat_index) if config.canonical_quat else -1,
         "observation_layout": env.observation_layout,
@@ -301,9 +319,15 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     parser.add_argument("checkpoint", help="checkpoint .npz file, or a run folder (its newest)")
     parser.add_argument("out", help="output file: .npz (numpy) or .onnx (ONNX)")
+    parser.add_argument(
+        "--drop-ik-finish",
+        action="store_true",
+        help="export a policy trained with an IK finish (ik_finish, the MARA preset's) "
+        "without it: the learnt joint-space policy alone",
+    )
     args = parser.parse_args(argv)
     try:
-        out = export_policy(args.checkpoint, args.out)
+        out = export_policy(args.checkpoint, args.out, args.drop_ik_finish)
         if out.suffix == ".onnx":
             print(f"wrote {out}: ONNX (opset 17), input obs (N, obs_size) float32, outputs "
                   "action and action_clipped (N, 6) rad")  # fmt: skip

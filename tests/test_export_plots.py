@@ -44,7 +44,8 @@ def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bo
         normalize_obs=normalize,
         obs_clip=5.0,
         relative_actions=relative,
-        hidden_obs=(13, 14, 15) if relative else (),  # MARAOrient's TCP velocity
+        # the TCP velocity (MARAOrient's 13-15, MARA's 9-11)
+        hidden_obs=((13, 14, 15) if "Orient" in env_name else (9, 10, 11)) if relative else (),
         # MARAOrient: the export must flip quat_err's sign too
         **{"canonical_quat": relative, **ppo},
     )
@@ -275,3 +276,28 @@ def test_export_refuses_ik_prior_policies(tmp_path):
     with pytest.raises(ExportError, match="ik_prior"):
         export_policy(tmp_path / "run", tmp_path / "policy.npz")
     assert not (tmp_path / "policy.npz").exists()
+
+
+def test_export_refuses_an_ik_finish_policy_unless_told_to_drop_the_finish(tmp_path, capsys):
+    """The MARA preset's IK finish needs the arm's Jacobian: refused with the way out named
+    (nothing written); with --drop-ik-finish the learnt policy alone is written, equal to
+    the checkpoint's policy where the finish is off (farther than ik_finish) and recorded
+    in the meta."""
+    path = make_run(tmp_path / "run", "MARA", True, relative=True, ik_finish=0.06)
+    out = tmp_path / "policy.npz"
+    assert run_cli(export_main, "export", [str(tmp_path / "run"), str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--drop-ik-finish" in err and "ik_finish=0.06" in err, err
+    assert not out.exists()
+    argv = [str(tmp_path / "run"), str(out), "--drop-ik-finish"]
+    assert run_cli(export_main, "export", argv) == 0
+    policy = load_exported(out)
+    assert policy.meta["ik_finish_dropped"] == 0.06
+    reference = make_policy(path)
+    assert reference.network.ik_finish == 0.06
+    obs = np.random.default_rng(2).normal(0.0, 1.0, (16, policy.observation_size))
+    obs = obs.astype(np.float32)
+    obs[:, 6:9] = 0.2  # 35 cm from the target: no finish
+    np.testing.assert_allclose(policy(obs), np.asarray(reference(jnp.asarray(obs))), atol=1e-5)
+    obs[:, 6:9] = 0.01  # within 6 cm: the checkpoint's policy finishes, the file does not
+    assert np.abs(policy(obs) - np.asarray(reference(jnp.asarray(obs)))).max() > 1e-3

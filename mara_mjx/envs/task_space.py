@@ -35,7 +35,9 @@ same tool pose, 2 pi of that joint away, as a local step would otherwise stop at
 limit (benchmarks/NOTES.md section 24). With orient_first the tool is turned onto the
 target before the TCP closes in, and the last approach is the IK step's alone (for an
 evaluation that stops at the first step within a position tolerance; training runs its
-loose form; benchmarks/NOTES.md sections 26-27).
+loose form; benchmarks/NOTES.md sections 26-27). On a position task, `finish_step` is the
+last approach of a deployed policy's IK finish (PPOConfig.ik_finish): the IK step alone,
+first to 1 cm short of the target, then onto it (benchmarks/NOTES.md section 28).
 """
 
 from __future__ import annotations
@@ -80,6 +82,11 @@ step alone): a full position step (MAX_POSITION_STEP) plus ORIENT_FIRST_HOLD, so
 last approach into the tolerance is the Newton step's, not the learnt correction's
 (whose tenth, left by ik_gate at 1 cm, turned the tool by about a degree on entry;
 benchmarks/NOTES.md section 27)."""
+FINISH_HOLD = ORIENT_FIRST_HOLD
+"""finish_step: m, the IK step aims this far short of the target (on the line to it) until
+the TCP is within FINISH_WITHIN x FINISH_HOLD, then at the target itself."""
+FINISH_WITHIN = 1.2
+"""finish_step: the aim moves onto the target within this multiple of FINISH_HOLD."""
 WRAP_NEAR = 0.02
 """pose_step(wrap_last=True): m, the TCP distance within which the last joint may be
 taken the long way round (farther, the full Newton step is no estimate of where it ends)."""
@@ -183,6 +190,20 @@ def pose_step(
     gradient flows through it.
     """
     return pose_step_wrapping(q, e, quat_err, wrap_last, orient_first, loose=loose)[0]
+
+
+def finish_step(q: jax.Array, e: jax.Array) -> jax.Array:
+    """The IK finish of a position task (PPOConfig.ik_finish): q (..., 6) rad, e (..., 3)
+    = p_tcp - p_target (m) -> dq (..., 6) rad, the position-only pose_step toward a point
+    FINISH_HOLD (1 cm) short of the target until the TCP is within FINISH_WITHIN x
+    FINISH_HOLD of it, then toward the target. The last step into an evaluation's 5 mm box
+    is then a Newton step from about 1 cm, whose second-order error is a few hundredths of
+    a millimetre; from 5 cm (one full MAX_POSITION_STEP) it is about 3 mm
+    (benchmarks/NOTES.md sections 27-28)."""
+    dist = jnp.linalg.norm(e, axis=-1, keepdims=True)
+    short = e * (1.0 - FINISH_HOLD / jnp.maximum(dist, 1e-12))
+    aim = jnp.where(dist > FINISH_WITHIN * FINISH_HOLD, short, e)
+    return pose_step(q, aim)
 
 
 def pose_step_wrapping(

@@ -15,10 +15,12 @@ arm's Jacobian turns into the joint displacement (mara_mjx.envs.task_space). Wit
 `ik_prior` an inverse-kinematics step toward the observed target enters as extra input
 features ('features') and, with 'residual', is added to the joint displacement the actor
 corrects (mara_mjx.envs.task_space.pose_step), the correction faded out near the target
-with `ik_gate` (so that the IK step alone finishes the reach). With `max_joint_step` m > 0 the joint
-displacement is squashed to m tanh(delta / m), so the
-mean moves each joint less than m per control step (and the trainer clips its samples to
-the same box), as the real driver's servos move at most `velocity` x control_dt.
+with `ik_gate` (so that the IK step alone finishes the reach). With `ik_finish` the saved
+policy of a position task ends with the IK step alone (task_space.finish_step) within
+that distance of the target; the trainer's network has no finish. With `max_joint_step`
+m > 0 the joint displacement is squashed to m tanh(delta / m), so the mean moves each
+joint less than m per control step (and the trainer clips its samples to the same box),
+as the real driver's servos move at most `velocity` x control_dt.
 
     network = make_network(config, action_size)
     mean, log_std, value = forward(network, params, obs_stats, obs, config.obs_clip)
@@ -71,6 +73,7 @@ class ActorCritic(nn.Module):
     ik_orient_first: bool = False
     ik_gate_roll: bool = False
     ik_orient_loose: bool = False
+    ik_finish: float = 0.0
 
     @nn.compact
     def __call__(
@@ -115,6 +118,12 @@ class ActorCritic(nn.Module):
                         gate = jnp.where(wrapping, 0.0, gate)
                     delta = delta * gate[..., None]
                 delta = delta + ik_step
+            if self.ik_finish > 0.0:  # the last approach is the IK step's (PPOConfig.ik_finish)
+                from mara_mjx.envs.task_space import finish_step
+
+                e = raw_obs[..., 6:9]
+                near = jnp.sum(jnp.square(e), -1, keepdims=True) < self.ik_finish**2
+                delta = jnp.where(near, finish_step(q, e), delta)
             if self.max_joint_step > 0.0:  # |delta| < m per joint, smoothly (PPOConfig)
                 delta = self.max_joint_step * jnp.tanh(delta / self.max_joint_step)
             mean = q + delta
@@ -169,8 +178,8 @@ def canonical_quat(obs: jax.Array, index: int) -> jax.Array:
 def make_network(config: Any, action_size: int, training: bool = False) -> ActorCritic:
     """The ActorCritic a PPOConfig describes (the one constructor: training, policies and
     checkpoints all build it here). `training`: the trainer's network, with the
-    training-only parts of the config (train_ik_gate_roll, train_ik_orient_loose);
-    policies run without them."""
+    training-only parts of the config (train_ik_gate_roll, train_ik_orient_loose) and
+    without the deployed-only one (ik_finish); policies run the other way round."""
     return ActorCritic(
         action_size,
         tuple(config.hidden_sizes),
@@ -189,6 +198,7 @@ def make_network(config: Any, action_size: int, training: bool = False) -> Actor
         config.ik_orient_first,
         training and config.train_ik_gate_roll,
         training and config.ik_orient_first and config.train_ik_orient_loose,
+        0.0 if training else config.ik_finish,
     )
 
 
