@@ -102,6 +102,58 @@ def last_joint_range() -> tuple[float, float]:
 
 
 @functools.lru_cache(maxsize=1)
+def joint_ranges() -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """(lower (6,), upper (6,)) of the nominal arm's joints (rad)."""
+    from mara_mjx.envs.arm import load_model
+
+    lo, hi = load_model().jnt_range.T
+    return tuple(float(x) for x in lo), tuple(float(x) for x in hi)
+
+
+def error_after(q: jax.Array, e: jax.Array, dq: jax.Array) -> jax.Array:
+    """The TCP position error (..., 3) after the joints move from q to q + dq (clipped to
+    the joint limits, as the env clips its targets), e (..., 3) the error at q: e plus the
+    nominal arm's TCP displacement. Where a step would take the TCP (a deployed policy's
+    guard: PPOConfig.ik_finish, ik_orient_first). No gradient flows through it."""
+    chain = nominal_chain()
+    lo, hi = (jnp.asarray(x, jnp.float32) for x in joint_ranges())
+    q, e, dq = (jax.lax.stop_gradient(x) for x in (q, e, dq))
+
+    def one(q1: jax.Array, e1: jax.Array, dq1: jax.Array) -> jax.Array:
+        return e1 + chain.tcp(jnp.clip(q1 + dq1, lo, hi))[0] - chain.tcp(q1)[0]
+
+    return jnp.vectorize(one, signature="(6),(3),(6)->(3)")(q, e, dq)
+
+
+def stop_outside(
+    q: jax.Array, e: jax.Array, dq: jax.Array, radius: float, iters: int = 12
+) -> jax.Array:
+    """dq (..., 6), shortened where it would take the TCP from outside `radius` (m) of the
+    target to deeper inside: to alpha dq, where bisection (`iters` halvings) finds the
+    step's way crossing into the zone, so the TCP stops just inside its edge (where the
+    IK step takes over on the next step). Elsewhere dq unchanged. A deployed policy's
+    guard: its learnt step does not jump into the zone where the IK step alone makes the
+    last approach (PPOConfig.ik_finish, ik_orient_first; benchmarks/NOTES.md section 28)."""
+    q, e, dq = (jax.lax.stop_gradient(x) for x in (q, e, dq))
+
+    def outside(alpha: jax.Array) -> jax.Array:
+        after = error_after(q, e, alpha[..., None] * dq)
+        return jnp.sum(jnp.square(after), -1) >= radius**2
+
+    shape = q.shape[:-1]
+    jumps = outside(jnp.zeros(shape)) & ~outside(jnp.ones(shape))
+
+    def halve(_, bounds):
+        lo, hi = bounds
+        mid = 0.5 * (lo + hi)
+        out = outside(mid)
+        return jnp.where(out, mid, lo), jnp.where(out, hi, mid)
+
+    _, hi = jax.lax.fori_loop(0, iters, halve, (jnp.zeros(shape), jnp.ones(shape)))
+    return jnp.where(jumps[..., None], hi[..., None] * dq, dq)
+
+
+@functools.lru_cache(maxsize=1)
 def nominal_chain() -> Chain:
     """The kinematic chain of the MARA model in the package's assets (built once)."""
     from mara_mjx.envs.arm import load_model  # arm imports chain (through lean): no cycle

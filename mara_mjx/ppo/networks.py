@@ -118,11 +118,18 @@ class ActorCritic(nn.Module):
                         gate = jnp.where(wrapping, 0.0, gate)
                     delta = delta * gate[..., None]
                 delta = delta + ik_step
+                if self.ik_orient_first and self.ik_gate_wrap and not self.ik_orient_loose:
+                    # the deployed rule: a learnt step stops at the edge of the zone where
+                    # the IK step alone makes the last approach (PPOConfig.ik_orient_first)
+                    from mara_mjx.envs.task_space import ORIENT_FIRST_NEAR, stop_outside
+
+                    delta = stop_outside(q, raw_obs[..., 6:9], delta, ORIENT_FIRST_NEAR)
             if self.ik_finish > 0.0:  # the last approach is the IK step's (PPOConfig.ik_finish)
-                from mara_mjx.envs.task_space import finish_step
+                from mara_mjx.envs.task_space import finish_step, stop_outside
 
                 e = raw_obs[..., 6:9]
                 near = jnp.sum(jnp.square(e), -1, keepdims=True) < self.ik_finish**2
+                delta = stop_outside(q, e, delta, self.ik_finish)  # no jump into the zone
                 delta = jnp.where(near, finish_step(q, e), delta)
             if self.max_joint_step > 0.0:  # |delta| < m per joint, smoothly (PPOConfig)
                 delta = self.max_joint_step * jnp.tanh(delta / self.max_joint_step)
