@@ -142,3 +142,25 @@ def test_hidden_obs_past_the_observation_is_a_clear_error(mara):
     with pytest.raises(ValueError, match="0-11"):
         for_env(PPOConfig(hidden_obs=(13, 14, 15)), mara)
     assert for_env(PPOConfig(hidden_obs=(9, 10, 11)), mara).hidden_obs == (9, 10, 11)
+
+
+def test_ik_inputs_passed_in_give_the_forward_pass_the_network_computes():
+    """The trainer computes the IK step once per rollout sample (networks.ik_inputs) and
+    passes it to the later forward passes (values, each epoch's minibatches): the same
+    mean and value as the network computing it, trainer's and saved networks alike."""
+    from mara_mjx.ppo.networks import ik_inputs
+
+    env = mara_mjx.make("MARAOrient")
+    config = for_env(PRESETS["orient_first"], env)
+    obs = jnp.asarray(np.random.default_rng(3).normal(0.0, 0.5, (16, env.observation_size)))
+    for training in (True, False):
+        network = make_network(config, 6, training=training)
+        params = network.init(jax.random.PRNGKey(1), obs, obs)
+        params = jax.tree_util.tree_map(lambda x: x + 0.05, params)
+        ik = ik_inputs(network, obs)
+        assert ik is not None and ik[0].shape == (16, 6)
+        got = forward(network, params, None, obs, 10.0, ik)
+        want = forward(network, params, None, obs, 10.0)
+        for a, b in zip(got, want, strict=True):
+            np.testing.assert_array_equal(a, b)
+    assert ik_inputs(make_network(PRESETS["default"], 6), obs) is None

@@ -458,7 +458,7 @@ def test_the_preset_follows_the_task_unless_one_is_given():
     """A *RandomTarget env trains with the 'random_target' preset (staggered first
     episodes), an *OrientRandomTarget one with 'random_target_orient' (plus the IK
     residual recipe), the fixed Orient tasks with 'orient_first', MARACollision with
-    'staggered' and MARA with 'ik_finish'; --preset and flags win. No compile."""
+    'staggered_ik_finish' and MARA with 'ik_finish'; --preset and flags win. No compile."""
 
     def ppo(*argv):
         return train_cli.resolve(train_cli.build_parser().parse_args([*argv, "--out", "x"])).ppo
@@ -477,7 +477,8 @@ def test_the_preset_follows_the_task_unless_one_is_given():
         assert first.total_timesteps == ppo("--env", "MARA").total_timesteps
     assert ppo("--env", "MARAOrient", "--preset", "default").ik_prior == ""
     default = ppo("--env", "MARA", "--preset", "default")
-    assert ppo("--env", "MARACollision") == default.replace(stagger_episodes=True)
+    staggered = default.replace(stagger_episodes=True, ik_finish=0.06)
+    assert ppo("--env", "MARACollision") == staggered
     assert ppo("--env", "MARA") == default.replace(ik_finish=0.06)  # the deployed finish
     assert ppo("--env", "MARA").stagger_episodes is False
     assert ppo("--env", "MARARandomTarget", "--preset", "default").stagger_episodes is False

@@ -77,23 +77,17 @@ class ActorCritic(nn.Module):
 
     @nn.compact
     def __call__(
-        self, obs: jax.Array, raw_obs: jax.Array | None = None
+        self, obs: jax.Array, raw_obs: jax.Array | None = None, ik: Any = None
     ) -> tuple[jax.Array, jax.Array, jax.Array]:
         """obs (..., obs_size) normalised (and the raw obs when relative_actions) ->
-        mean (..., A), log_std (..., A), value (...)."""
+        mean (..., A), log_std (..., A), value (...). `ik`: ik_inputs(self, raw_obs) if
+        already computed (the trainer computes it once per sample), else None."""
         if self.hidden_obs:  # entries neither network sees (zero after normalisation)
             obs = obs.at[..., jnp.asarray(self.hidden_obs)].set(0.0)
         if self.ik_prior:  # the IK step toward the observed target (PPOConfig.ik_prior)
             if raw_obs is None:
                 raise ValueError("ik_prior: the network needs the raw observation")
-            ik_step, wrapping = ik_prior_step(
-                raw_obs,
-                self.ik_quat_index,
-                self.ik_wrap,
-                self.ik_orient_first,
-                self.ik_gate_roll,
-                self.ik_orient_loose,
-            )
+            ik_step, wrapping = ik_inputs(self, raw_obs) if ik is None else ik
             obs = jnp.concatenate([obs, *(jnp.tanh(ik_step / s) for s in IK_FEATURE_SCALES)], -1)
         mean = MLP(self.hidden_sizes, self.action_size, 0.01, name="actor")(obs)
         if self.relative_actions:
@@ -167,6 +161,23 @@ def ik_prior_step(
     )
 
 
+def ik_inputs(network: ActorCritic, raw_obs: jax.Array) -> tuple[jax.Array, jax.Array] | None:
+    """What `network` computes from the raw observation before its MLPs: the IK step and
+    its flag (ik_prior_step with the network's options), or None without ik_prior. No
+    params and no gradient: the trainer computes it once per rollout sample and passes it
+    to every later forward pass of that sample (the values, each epoch's minibatches)."""
+    if not network.ik_prior:
+        return None
+    return ik_prior_step(
+        raw_obs,
+        network.ik_quat_index,
+        network.ik_wrap,
+        network.ik_orient_first,
+        network.ik_gate_roll,
+        network.ik_orient_loose,
+    )
+
+
 def ik_gate(raw_obs: jax.Array, scale: float) -> jax.Array:
     """tanh(|e| / scale) of PPOConfig.ik_gate, e = obs[6:9] of a MARA observation -> (...)."""
     return jnp.tanh(jnp.sqrt(jnp.sum(jnp.square(raw_obs[..., 6:9]), -1) + 1e-20) / scale)
@@ -210,12 +221,18 @@ def make_network(config: Any, action_size: int, training: bool = False) -> Actor
 
 
 def forward(
-    network: ActorCritic, params: Any, stats: RunningStats | None, obs: jax.Array, clip: float
+    network: ActorCritic,
+    params: Any,
+    stats: RunningStats | None,
+    obs: jax.Array,
+    clip: float,
+    ik: Any = None,
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Raw obs (..., obs_size) -> (mean, log_std, value): canonicalise the quaternion
-    block (if the network has one), normalise, then the network."""
+    block (if the network has one), normalise, then the network (with `ik`, the
+    network's ik_inputs of obs if already computed)."""
     features = canonical_quat(obs, network.quat_index)
-    return network.apply(params, normalize(stats, features, clip), obs)
+    return network.apply(params, normalize(stats, features, clip), obs, ik)
 
 
 def gaussian_log_prob(mean: jax.Array, log_std: jax.Array, action: jax.Array) -> jax.Array:

@@ -48,6 +48,7 @@ from mara_mjx.ppo.networks import (
     forward,
     gaussian_entropy,
     gaussian_log_prob,
+    ik_inputs,
     make_network,
     update_stats,
 )
@@ -82,6 +83,7 @@ class Transition(NamedTuple):
     final_obs: jax.Array  # (N, obs) observation the step produced, before any auto-reset
     episode_return: jax.Array  # (N,) return of the episode that ended here, else 0
     metrics: dict[str, jax.Array]  # env metrics of the step
+    ik: Any = None  # networks.ik_inputs of obs (ik_prior), computed once per sample
 
 
 class Batch(NamedTuple):
@@ -93,6 +95,7 @@ class Batch(NamedTuple):
     value: jax.Array
     advantages: jax.Array
     returns: jax.Array
+    ik: Any = None  # networks.ik_inputs of obs (ik_prior), from the rollout
 
 
 class Trainer(NamedTuple):
@@ -215,8 +218,8 @@ def make_train(
     def stats_in_use(state: RunnerState) -> RunningStats | None:
         return state.obs_stats if config.normalize_obs else None
 
-    def policy(params: Any, stats: RunningStats | None, obs: jax.Array):
-        return forward(network, params, stats, obs, config.obs_clip)
+    def policy(params: Any, stats: RunningStats | None, obs: jax.Array, ik: Any = None):
+        return forward(network, params, stats, obs, config.obs_clip, ik)
 
     def initial_params() -> Any:
         """The env's default params, with `train_reset_noise` for the first episodes
@@ -256,7 +259,8 @@ def make_train(
         def step(carry, t):
             env_state, key = carry
             key, noise_key = jax.random.split(key)
-            mean, log_std, _ = policy(params, stats, env_state.obs)
+            ik = ik_inputs(network, env_state.obs)  # once per sample (the IK step: ik_prior)
+            mean, log_std, _ = policy(params, stats, env_state.obs, ik)
             sample = mean + jnp.exp(log_std) * jax.random.normal(noise_key, mean.shape)
             probe = t == config.num_steps
             probe_mean = mean
@@ -283,6 +287,7 @@ def make_train(
                 final_obs=next_state.final_obs,
                 episode_return=next_state.episode_return,
                 metrics=next_state.metrics,
+                ik=ik,
             )
             env_state = jax.tree.map(
                 lambda old, new: jnp.where(probe, old, new), env_state, next_state
@@ -301,7 +306,7 @@ def make_train(
     upper = jnp.asarray(getattr(env, "joint_upper", jnp.inf), jnp.float32)
 
     def loss_fn(params: Any, stats: RunningStats | None, mb: Batch):
-        mean, log_std, value = policy(params, stats, mb.obs)
+        mean, log_std, value = policy(params, stats, mb.obs, mb.ik)
         total, info = ppo_loss(
             gaussian_log_prob(mean, log_std, mb.action),
             value,
@@ -395,7 +400,7 @@ def make_train(
             reward = reward - fade * config.train_limit_penalty * limit_penalty(
                 q, lower, upper, config.train_limit_soft
             )
-        _, _, value = policy(state.params, stats, traj.obs)
+        _, _, value = policy(state.params, stats, traj.obs, traj.ik)
         _, _, final_value = policy(state.params, stats, traj.final_obs)
         next_value = final_value * (1.0 - traj.terminated.astype(jnp.float32))
         done = traj.terminated | traj.truncated
@@ -414,6 +419,7 @@ def make_train(
             value=value,
             advantages=advantages,
             returns=returns,
+            ik=traj.ik,
         )
         params, opt_state, info, grad_norm = sgd(
             state.params, state.opt_state, stats, batch, sgd_key
