@@ -110,21 +110,6 @@ def joint_ranges() -> tuple[tuple[float, ...], tuple[float, ...]]:
     return tuple(float(x) for x in lo), tuple(float(x) for x in hi)
 
 
-def error_after(q: jax.Array, e: jax.Array, dq: jax.Array) -> jax.Array:
-    """The TCP position error (..., 3) after the joints move from q to q + dq (clipped to
-    the joint limits, as the env clips its targets), e (..., 3) the error at q: e plus the
-    nominal arm's TCP displacement. Where a step would take the TCP (a deployed policy's
-    guard: PPOConfig.ik_finish, ik_orient_first). No gradient flows through it."""
-    chain = nominal_chain()
-    lo, hi = (jnp.asarray(x, jnp.float32) for x in joint_ranges())
-    q, e, dq = (jax.lax.stop_gradient(x) for x in (q, e, dq))
-
-    def one(q1: jax.Array, e1: jax.Array, dq1: jax.Array) -> jax.Array:
-        return e1 + chain.tcp(jnp.clip(q1 + dq1, lo, hi))[0] - chain.tcp(q1)[0]
-
-    return jnp.vectorize(one, signature="(6),(3),(6)->(3)")(q, e, dq)
-
-
 def stop_outside(
     q: jax.Array, e: jax.Array, dq: jax.Array, radius: float, iters: int = 12
 ) -> jax.Array:
@@ -133,24 +118,31 @@ def stop_outside(
     step's way crossing into the zone, so the TCP stops just inside its edge (where the
     IK step takes over on the next step). Elsewhere dq unchanged. A deployed policy's
     guard: its learnt step does not jump into the zone where the IK step alone makes the
-    last approach (PPOConfig.ik_finish, ik_orient_first; benchmarks/NOTES.md section 28)."""
+    last approach (PPOConfig.ik_finish, ik_orient_first; benchmarks/NOTES.md section 28).
+    The TCP after a step is the nominal arm's at q + alpha dq clipped to the joint limits,
+    as the env clips its targets: one forward kinematics per halving."""
+    chain = nominal_chain()
+    lo6, hi6 = (jnp.asarray(x, jnp.float32) for x in joint_ranges())
     q, e, dq = (jax.lax.stop_gradient(x) for x in (q, e, dq))
 
-    def outside(alpha: jax.Array) -> jax.Array:
-        after = error_after(q, e, alpha[..., None] * dq)
-        return jnp.sum(jnp.square(after), -1) >= radius**2
+    def one(q1: jax.Array, e1: jax.Array, dq1: jax.Array) -> jax.Array:
+        target = chain.tcp(q1)[0] - e1
 
-    shape = q.shape[:-1]
-    jumps = outside(jnp.zeros(shape)) & ~outside(jnp.ones(shape))
+        def outside(alpha: jax.Array) -> jax.Array:
+            after = chain.tcp(jnp.clip(q1 + alpha * dq1, lo6, hi6))[0] - target
+            return jnp.sum(jnp.square(after)) >= radius**2
 
-    def halve(_, bounds):
-        lo, hi = bounds
-        mid = 0.5 * (lo + hi)
-        out = outside(mid)
-        return jnp.where(out, mid, lo), jnp.where(out, hi, mid)
+        def halve(_, bounds):
+            lo, hi = bounds
+            mid = 0.5 * (lo + hi)
+            out = outside(mid)
+            return jnp.where(out, mid, lo), jnp.where(out, hi, mid)
 
-    _, hi = jax.lax.fori_loop(0, iters, halve, (jnp.zeros(shape), jnp.ones(shape)))
-    return jnp.where(jumps[..., None], hi[..., None] * dq, dq)
+        jumps = (jnp.sum(jnp.square(e1)) >= radius**2) & ~outside(jnp.ones(()))
+        _, hi = jax.lax.fori_loop(0, iters, halve, (jnp.zeros(()), jnp.ones(())))
+        return jnp.where(jumps, hi * dq1, dq1)
+
+    return jnp.vectorize(one, signature="(6),(3),(6)->(6)")(q, e, dq)
 
 
 @functools.lru_cache(maxsize=1)
