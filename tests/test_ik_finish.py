@@ -164,3 +164,27 @@ def test_ik_inputs_passed_in_give_the_forward_pass_the_network_computes():
         for a, b in zip(got, want, strict=True):
             np.testing.assert_array_equal(a, b)
     assert ik_inputs(make_network(PRESETS["default"], 6), obs) is None
+
+
+def test_stop_outside_shortens_a_jump_into_the_zone_to_just_inside_its_edge():
+    """A joint step taking the TCP from 10 cm to the target is cut to the crossing of the
+    6-cm sphere (the TCP lands just inside it); a step that stays outside, and one from
+    inside, are unchanged."""
+    from mara_mjx.envs.task_space import stop_outside
+
+    chain = nominal_chain()
+    q = jnp.asarray(POSTURE, jnp.float32)
+    goal = q + jnp.asarray([0.15, -0.1, 0.1, 0.0, 0.1, 0.0])  # the target's posture
+    target = chain.tcp(goal)[0]
+    e = chain.tcp(q)[0] - target
+    assert 0.08 < float(jnp.linalg.norm(e)) < 0.3, e
+    radius = 0.5 * float(jnp.linalg.norm(e))
+    cut = stop_outside(q, e, goal - q, radius)
+    ratio = np.asarray(cut / (goal - q))[[0, 1, 2, 4]]
+    assert np.ptp(ratio) < 1e-6 and 0.0 < ratio[0] < 1.0  # the same step, shortened
+    after = float(jnp.linalg.norm(chain.tcp(q + cut)[0] - target))
+    assert radius - 1e-3 < after < radius, (after, radius)
+    small = 0.1 * (goal - q)  # stays outside the zone
+    np.testing.assert_array_equal(stop_outside(q, e, small, radius), small)
+    inside = stop_outside(q, e, goal - q, 2.0 * float(jnp.linalg.norm(e)))  # already in
+    np.testing.assert_array_equal(inside, goal - q)
