@@ -3,30 +3,85 @@
 # Run from benchmarks/: bash results/paper_table/make_readme.sh
 set -e
 P=results/paper_table O=results/orientation
+rows() { python3 paper_table.py "$@" | sed -n '/^|---/,/^$/p' | tail -n +2 | sed '/^$/d'; }
+header() { python3 paper_table.py "$@" | sed -n '/^| task/,/^|---/p'; }
 {
+python3 paper_table.py $P/paper_table28_MARA_seeds0-4.json $P/paper_table28_MARA_seeds5-9.json \
+    $P/paper_table28_MARA_seeds10-14.json $P/paper_table28_MARA_eval_cpu.json \
+    $P/paper_table28_MARACollision_seeds5-9.json $P/paper_table28_MARACollision_seeds10-14.json \
+    $P/paper_table28_MARAOrient.json $P/paper_table28_MARACollisionOrient.json
+cat <<'TXT'
+
+Session 28's code (`benchmarks/NOTES.md` section 28): the position tasks' policies end with
+the IK finish (`ik_finish` 0.06, deployed only), every deployed rule has the guard
+(`task_space.stop_outside`), and the PPO computes the IK step once per sample. The device
+paths (`/tmp/r/...`, `/root/out/...`) are where the files were written on the GPU machine;
+here they are `paper_table28_*` (the MARA accuracy columns: `paper_table28_MARA_eval_cpu.json`,
+the saved policies `params/MARA_ik_finish/` evaluated again on the CPU with the committed
+code; the GPU run's own evaluation predates the guard).
+
+Times, one H100: MARA seeds 0-4 ran alone, first on a fresh machine (42.6 s to the first
+probe within 1 mm, every seed); seeds 5-9 and 10-14 of MARA ran beside the two Orient
+studies (4 programs sharing the GPU), MARACollision's two programs side by side, the
+Orient tasks' alone and one after the other. Every seed of every task was within 1 mm at
+its study's first probe, so these times are the first probe's: compile plus the first
+chunk of updates, not the policy's own time to accuracy. The user's command on the same
+code: `cli28/` and the README's "Training".
+
+Collisions: MARA seed 7 collides twice per episode on the way in (each collision resets
+the arm, which then reaches the target within 0.25 mm) and holds the target colliding on
+almost every step of the hold (997.8 per episode). The learnt policy's own posture at
+the target collides (joint 4 at its -pi stop, the wrist folded back; the same without the
+finish: NOTES section 28); MARA's reward has no collision term, and the spec's collision
+penalty (delta (2 min(d, 0.5))^eta) is 0 at the target, so nothing in training pushes a
+policy off a colliding posture there. MARA seed 12: 1.4 collisions per episode, all on
+the way in. No other seed-run collides in the evaluation or the hold.
+
+## The guarded deployed rule on earlier policies (GPU evaluation)
+
+The saved policies of study 27 (10 seeds per Orient task), of study 28 (seeds 10-14 per
+Orient task, trained this session; without the guard MARACollisionOrient seed 14 entered
+the 5 mm box 2.49 / 1.79 / 40.3 deg off: `results/orientation/study28_mco.json`), of the
+previous paper table (Orient seeds 0-4; MARACollision seeds 0-4 with `ik_finish` 0.06 set
+at inference, the training being the same), evaluated with this session's rules, the
+paper's episodes (eval seed 0) and other ones (eval seed 3):
+
+TXT
+header $O/study27_loose_mco.json
+rows $O/study27_loose_mco.json $O/study27_loose_mao.json \
+    $O/study28_guard_study27_mco_eval0_gpu.json $O/study28_guard_study27_mao_eval0_gpu.json \
+    | sed 's/^| MARA\([A-Za-z]*\) | default {[^}]*}/| MARA\1, study 27 | orient_first (as overrides)/'
+rows $O/study27_loose_mco.json $O/study27_loose_mao.json \
+    $O/study28_guard_study27_mco_eval3_gpu.json $O/study28_guard_study27_mao_eval3_gpu.json \
+    | sed 's/^| MARA\([A-Za-z]*\) | default {[^}]*}/| MARA\1, study 27, eval seed 3 | orient_first (as overrides)/'
+rows $O/study28_mco.json $O/study28_mao.json $O/study28_mco_guard_eval0_gpu.json $O/study28_mao_guard_eval0_gpu.json \
+    | sed 's/^| MARA\([A-Za-z]*\) |/| MARA\1, study 28 |/'
+rows $O/study28_mco.json $O/study28_mao.json $O/study28_mco_guard_eval3_gpu.json $O/study28_mao_guard_eval3_gpu.json \
+    | sed 's/^| MARA\([A-Za-z]*\) |/| MARA\1, study 28, eval seed 3 |/'
+rows $P/paper_table_presets.json:0,1 $P/paper_table_presets_MARACollisionOrient_guard_eval_gpu.json \
+    $P/paper_table_presets_MARAOrient_guard_eval_gpu.json \
+    | sed 's/^| MARA\([A-Za-z]*\) |/| MARA\1, previous paper table |/'
+rows $P/paper_table_presets.json:2 $P/paper_table_presets_MARACollision_ik_finish_eval_gpu.json \
+    | sed 's/^| MARACollision | staggered |/| MARACollision, previous paper table | staggered + ik_finish 0.06 at inference |/'
+rows $P/paper_table_presets.json:2 $P/paper_table_presets_MARACollision_ik_finish_eval_seed3_gpu.json \
+    | sed 's/^| MARACollision | staggered |/| MARACollision, previous paper table, eval seed 3 | staggered + ik_finish 0.06 at inference |/'
+cat <<'TXT'
+
+Times in these rows are the training runs' (earlier rules in their probes). Commands:
+`python benchmarks/orientation_params_eval.py DIR --task T --seeds ... [--eval-seed 3]
+[--set 'ik_finish=0.06'] --out F` (each file records its own); the DIRs are
+`results/orientation/params/study27_loose_*`, `study28_*` and `params/` here.
+
+## The previous paper table (session 27's code)
+
+TXT
 python3 paper_table.py $P/paper_table_presets.json $P/paper_table_position_seeds5-9.json \
-    $P/paper_table_presets_MARAOrient_eval_cpu.json $P/paper_table_presets_MARACollisionOrient_eval_cpu.json
-echo
-echo "The Orient rows' times come from the GPU run's probe, which ran the deployed IK rule of"
-echo "commit 159f656 (a standoff down to 0.02 rad, no hold, no IK-alone zone); their accuracy"
-echo "columns are the committed rule's (the saved policies, \`params/\`, evaluated again on the CPU)."
-echo
-echo "## Ten seeds of the Orient tasks (study 27), two sets of evaluation episodes"
-echo
-echo "The \`orient_first\` preset (written out as overrides of \`default\`: the run predates"
-echo "\`--preset task\`), seeds 0-9 per task, three programs sharing one H100 (times are not a"
-echo "single user's; 20-step probe), the policies (\`results/orientation/params/study27_loose_*\`)"
-echo "evaluated again on the CPU with the committed IK rule: with the paper's episodes"
-echo "(\`EvalConfig.seed\` 0), then with other ones (\`--eval-seed 3\`)."
-echo
-python3 paper_table.py $O/study27_loose_mco.json $O/study27_loose_mao.json \
-    $O/study27_loose_mco_eval_cpu.json $O/study27_loose_mao_eval_cpu.json | sed -n '/^| task/,/^$/p' | sed '/^$/d'
-python3 paper_table.py $O/study27_loose_mco.json $O/study27_loose_mao.json \
-    $O/study27_loose_mco_eval_seed3_cpu.json $O/study27_loose_mao_eval_seed3_cpu.json \
-    | sed -n '/^|---/,/^$/p' | tail -n +2 | sed '/^$/d' \
-    | sed 's/^| MARA\([A-Za-z]*\) |/| MARA\1, other episodes (eval seed 3) |/'
-echo
-echo "Commands: \`python benchmarks/orientation_params_eval.py results/orientation/params/study27_loose_mco"
-echo "--task MARACollisionOrient --seeds 0 1 2 3 4 5 6 7 8 9 [--eval-seed 3]\` (and mao / MARAOrient);"
-echo "this README: \`bash results/paper_table/make_readme.sh\` (from benchmarks/)."
+    $P/paper_table_presets_MARAOrient_eval_cpu.json $P/paper_table_presets_MARACollisionOrient_eval_cpu.json \
+    | sed -n '/^| task/,/^$/p'
+cat <<'TXT'
+MARA's default policies entered the 5 mm box from their own last step, up to 3.73 mm off on
+z (seeds 5 and 8); the Orient rows' accuracy is session 27's rule without the guard.
+
+This README: `bash results/paper_table/make_readme.sh` (from benchmarks/).
+TXT
 } > $P/README.md
