@@ -120,9 +120,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--preset",
         choices=sorted(PRESETS),
         help="PPO preset (mara_mjx/ppo/config.py PRESETS): default (thousands of envs on a "
-        "GPU), paper (1 env), ros2learn, cpu (a laptop), random_target = staggered, "
-        "random_target_orient, orient_first; flags override its fields (default: the "
-        "task's, ppo.config.default_preset)",
+        "GPU), ik_finish, staggered_ik_finish, paper (1 env), ros2learn, cpu (a laptop), "
+        "random_target = staggered, random_target_orient, orient_first; flags override its "
+        "fields (default: the task's, ppo.config.default_preset)",
     )
     parser.add_argument(
         "--resume",
