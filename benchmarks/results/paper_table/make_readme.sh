@@ -31,8 +31,8 @@ code: `cli28/` and the README's "Training".
 Collisions: MARA seed 7 collides twice per episode on the way in (each collision resets
 the arm, which then reaches the target within 0.25 mm) and holds the target colliding on
 almost every step of the hold (997.8 per episode). The learnt policy's own posture at
-the target collides (joint 4 at its -pi stop, the wrist folded back; the same without the
-finish: NOTES section 28); MARA's reward has no collision term, and the spec's collision
+the target collides (the upper arm's tube 4.9 mm into the base; the same without the
+finish: NOTES section 28 part 3); MARA's reward has no collision term, and the spec's collision
 penalty (delta (2 min(d, 0.5))^eta) is 0 at the target, so nothing in training pushes a
 policy off a colliding posture there. MARA seed 12: 1.4 collisions per episode, all on
 the way in. No other seed-run collides in the evaluation or the hold.
