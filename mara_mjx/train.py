@@ -386,8 +386,8 @@ def finish(
         "env_name": plan.env_name,
         "final_update": last,
         "time_to_accuracy": milestones.records,
-        "time_to_accuracy_metric": "det_error_mm: mean over envs and axes of |e| (mm) after "
-        "one deterministic (Gaussian mean) step from each env's state at the end of a rollout",
+        "time_to_accuracy_metric": "reach_error_mm (probe_reach_steps > 0: the saved policy from"
+        " the reset), else det_error_mm (one deterministic step from each env's state)",
         "command_time_s": time.monotonic() - _START,
     }
     if not milestones.records:

@@ -978,3 +978,49 @@ def test_evaluation_rate_limit_uses_the_servo_travel_and_needs_the_real_driver(m
     jax.eval_shape(fn, base)
     np.testing.assert_allclose(np.asarray(seen["max_step"]), [[0.015], [0.015]], rtol=1e-5)
     np.testing.assert_allclose(seen["lower"], env.joint_lower)
+
+
+def test_probe_reach_steps_measures_the_saved_policy_from_the_reset_and_changes_nothing(toy):
+    """PPOConfig.probe_reach_steps: a call of `run` ends with the deterministic policy's
+    rollout from the reset; `reach_error_mm` is its mean per-axis |e| at the last step, on
+    the call's last valid row (NaN elsewhere); the training itself is bitwise the same."""
+    from mara_mjx.ppo.networks import forward
+    from mara_mjx.ppo.train import PROBE_REACH_EPISODES
+
+    trainer, state = toy
+    probing = make_train(PointReach(), TOY_CONFIG.replace(probe_reach_steps=3), updates_per_call=4)
+    plain_state, plain = trainer.run(state, 3)
+    probe_state, probed = probing.run(probing.init(jax.random.key(0)), 3)
+    pairs = (plain_state.params, probe_state.params)
+    leaves = zip(*map(jax.tree.leaves, pairs), strict=True)
+    for a, b in leaves:
+        np.testing.assert_array_equal(a, b)
+    reach = np.asarray(probed["reach_error_mm"])
+    assert "reach_error_mm" not in plain
+    assert np.isnan(reach[[0, 1, 3]]).all() and np.isfinite(reach[2]), reach
+    env = PointReach()  # the probe by hand: 3 deterministic steps from the same resets
+    keys = jax.random.split(jax.random.key(0), PROBE_REACH_EPISODES)
+    s = jax.vmap(env.reset)(keys)
+    for _ in range(3):
+        mean = forward(probing.network, probe_state.params, probe_state.obs_stats, s.obs, 10.0)[0]
+        s = jax.vmap(env.step)(s, mean)
+    expected = 1000.0 * float(jnp.mean(s.metrics["position_error"]))
+    np.testing.assert_allclose(reach[2], expected, rtol=1e-5)
+    assert expected > 1.0  # an untrained policy: the number is not a constant
+
+
+def test_milestones_use_the_reach_probe_where_the_rows_have_it():
+    """Time to accuracy: `reach_error_mm` (NaN on rows without a probe: no record) where
+    the run has the probe, else `det_error_mm`."""
+    from mara_mjx.ppo.logger import Milestones
+
+    def row(update, det, reach=None):
+        r = {"time_s": float(update), "env_steps": 10 * update, "update": update}
+        return {**r, "det_error_mm": det, **({} if reach is None else {"reach_error_mm": reach})}
+
+    probed = Milestones()
+    probed.update([row(1, 0.5, float("nan")), row(2, 9.0, 3.0), row(3, 9.0, 0.8)])
+    assert probed.records["5mm"]["update"] == 2 and probed.records["1mm"]["update"] == 3
+    plain = Milestones()
+    plain.update([row(1, 6.0), row(2, 0.5)])
+    assert plain.records["5mm"]["update"] == 2 and plain.records["1mm"]["update"] == 2

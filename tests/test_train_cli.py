@@ -514,7 +514,9 @@ def test_orient_task_default_trains_and_its_checkpoint_runs_without_the_training
     assert proc.returncode == 0, proc.stderr[-4000:]
     ppo = json.loads((out / "config.json").read_text())["ppo"]
     assert ppo["ik_orient_first"] and ppo["train_ik_gate_roll"] and ppo["stagger_episodes"]
-    assert ppo["train_ik_orient_loose"]
+    assert ppo["train_ik_orient_loose"] and ppo["probe_reach_steps"] == 100
+    rows = read_rows(out / "progress.csv")  # one update per call: every row probed
+    assert rows and all(float(r["reach_error_mm"]) > 0.0 for r in rows), rows
     report = tmp_path / "eval.json"
     proc = run_module(users_env, "mara_mjx.evaluate", str(out), "--json", str(report))
     assert proc.returncode == 0, proc.stderr[-4000:]

@@ -31,6 +31,7 @@ BASE_COLUMNS = (
     "det_error_mm",
     *(f"det_err_{a}_mm" for a in AXES),
     "det_distance_mm",
+    "reach_error_mm",
 )
 ORIENT_COLUMNS = (
     *(f"ori_err_{a}_deg" for a in AXES),
@@ -96,8 +97,9 @@ def rows_from_metrics(
 
 
 class Milestones:
-    """Wall-clock time and env steps when the deterministic mean per-axis error
-    (`det_error_mm`) first drops below each threshold."""
+    """Wall-clock time and env steps when the deterministic mean per-axis error first
+    drops below each threshold: `reach_error_mm` (the probe from the reset of
+    PPOConfig.probe_reach_steps) where the rows have it, else `det_error_mm`."""
 
     def __init__(self, records: dict[str, Any] | None = None):
         self.records: dict[str, Any] = dict(records or {})
@@ -106,7 +108,9 @@ class Milestones:
         """Record new crossings; returns messages for them."""
         messages = []
         for row in rows:
-            err = row.get("det_error_mm", math.nan)
+            # PPOConfig.probe_reach_steps' probe from the reset where the run has one
+            err = row["reach_error_mm"] if "reach_error_mm" in row else row.get("det_error_mm")
+            err = math.nan if err is None else err
             for mm in ACCURACY_THRESHOLDS_MM:
                 key = f"{mm:g}mm"
                 if key not in self.records and err < mm:

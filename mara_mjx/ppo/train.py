@@ -19,6 +19,8 @@ One update, top to bottom:
      over several devices each device trains on its own envs' samples (see sgd below);
   4. observation statistics merged with the rollout's observations (if normalize_obs); the
      rollout and the loss of this update both used the statistics from before it.
+With `probe_reach_steps`, a call of `run` ends with a deterministic rollout of the saved
+policy from the reset (its accuracy once it has had the steps to reach: `reach_error_mm`).
 
 Env step counts never live in a device integer: the host derives them as Python ints from
 the update count (an int32 that stays below 2^31 / (epochs * minibatches), checked in
@@ -69,6 +71,12 @@ class RunnerState:
     # the last exploit step, summed over updates; every other leaf then has a leading
     # (K,) member axis. None (no leaf) for a single-member run.
     fitness: Any = None
+
+
+PROBE_REACH_EPISODES = 4
+"""PPOConfig.probe_reach_steps: episodes of the probe from the reset."""
+PROBE_REACH_NOISE = 0.02
+"""PPOConfig.probe_reach_steps: the probe's reset noise (rad), the paper evaluation's."""
 
 
 class Transition(NamedTuple):
@@ -465,7 +473,29 @@ def make_train(
         def body(state: RunnerState, i: jax.Array):
             return jax.lax.cond(i < num_updates, update, skip, state)
 
-        return jax.lax.scan(body, state, jnp.arange(updates_per_call))
+        state, metrics = jax.lax.scan(body, state, jnp.arange(updates_per_call))
+        if config.probe_reach_steps > 0:  # the saved policy from the reset, on the last row
+            reach = reach_probe(state.params, stats_in_use(state))
+            last = jnp.clip(num_updates, 1, updates_per_call) - 1
+            metrics["reach_error_mm"] = jnp.full(updates_per_call, jnp.nan).at[last].set(reach)
+        return state, metrics
+
+    def reach_probe(params: Any, stats: RunningStats | None) -> jax.Array:
+        """PPOConfig.probe_reach_steps: mean per-axis |e| (mm) of the saved (deterministic)
+        policy after that many steps from the env's reset, PROBE_REACH_EPISODES episodes
+        with the paper's evaluation noise (fixed keys: the same episodes every call)."""
+        one = benv.env
+        noisy = hasattr(getattr(one, "default_params", None), "reset_noise")
+        env_params = one.make_params(reset_noise=PROBE_REACH_NOISE) if noisy else None
+        keys = jax.random.split(jax.random.key(0), PROBE_REACH_EPISODES)
+        env_state = jax.vmap(one.reset, in_axes=(0, None))(keys, env_params)
+
+        def body(env_state, _):
+            mean = forward(saved, params, stats, env_state.obs, config.obs_clip)[0]
+            return jax.vmap(one.step)(env_state, mean), None
+
+        env_state, _ = jax.lax.scan(body, env_state, None, length=config.probe_reach_steps)
+        return 1000.0 * jnp.mean(env_state.metrics["position_error"])
 
     if config.population > 1:
         if mesh is not None:
