@@ -190,7 +190,9 @@ class PPOConfig(_ConfigMixin):
     time-to-accuracy records then use instead of `det_error_mm`. The one-step probe of
     `det_error_mm` starts where the sampled policy left each env and cannot show a
     deployed rule that takes several steps (ik_orient_first holds the TCP 1 cm off until
-    the tool is aligned: benchmarks/NOTES.md section 28). No effect on training. 0: off."""
+    the tool is aligned: benchmarks/NOTES.md section 28; for the Orient tasks' time to
+    accuracy pass --probe_reach_steps 100). No effect on training; its GPU cost is not
+    measured yet, so no preset sets it. 0: off."""
     hidden_obs: tuple[int, ...] = ()
     """Observation indices that neither network sees (set to 0 after normalisation), e.g.
     9 10 11 for the TCP velocity of MARA/MARACollision (13 14 15 for the Orient tasks)."""
@@ -714,7 +716,6 @@ PRESETS["orient_first"] = PRESETS["random_target_orient"].replace(
     total_timesteps=PRESETS["default"].total_timesteps,
     ik_orient_first=True,
     train_ik_gate_roll=True,
-    probe_reach_steps=100,  # its time to accuracy: from the reset (section 28)
 )
 
 
