@@ -3,8 +3,9 @@
     PPOConfig    the algorithm and the networks (everything `make_train` compiles)
     RunConfig    the host loop: output folder, checkpoints, logging, jit granularity
     EvalConfig   the paper's accuracy evaluation (10 episodes, 5 mm stop condition)
-    PRESETS      {"default", "paper", "ros2learn", "random_target", "staggered",
-                  "random_target_orient", "orient_first", "cpu"} -> PPOConfig
+    PRESETS      {"default", "ik_finish", "paper", "ros2learn", "random_target",
+                  "staggered", "staggered_ik_finish", "random_target_orient",
+                  "orient_first", "cpu"} -> PPOConfig
     default_preset(env_name) -> the train CLI's preset when none is given
 
 The CLIs (`python -m mara_mjx.train`, `python -m mara_mjx.evaluate`) generate one flag per
