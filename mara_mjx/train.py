@@ -1,6 +1,6 @@
 """Train PPO on a MARA task: python -m mara_mjx.train --env MARACollisionOrient
 
-    python -m mara_mjx.train --env MARA                          # the 'default' preset (GPU)
+    python -m mara_mjx.train --env MARA                          # the task's preset (GPU)
     python -m mara_mjx.train --env MARA --preset paper           # the paper: 1 env, 1e8 steps
     python -m mara_mjx.train --env MARA --preset cpu             # a laptop CPU: minutes
     python -m mara_mjx.train --env MARA --num_envs 4096 --learning_rate 1e-3 --driver train

@@ -188,3 +188,95 @@ def test_stop_outside_shortens_a_jump_into_the_zone_to_just_inside_its_edge():
     np.testing.assert_array_equal(stop_outside(q, e, small, radius), small)
     inside = stop_outside(q, e, goal - q, 2.0 * float(jnp.linalg.norm(e)))  # already in
     np.testing.assert_array_equal(inside, goal - q)
+
+
+def test_stop_outside_batched_and_differentiable_through_the_step():
+    """A batch mixing jumps into the zone with steps that stay out or start in: only the
+    jumps are shortened; the result is alpha x the step with alpha held fixed, so the
+    actor's gradient flows through the step (a guard in a trainer's network must not cut
+    it)."""
+    from mara_mjx.envs.task_space import stop_outside
+
+    chain = nominal_chain()
+    q = jnp.asarray(np.tile(POSTURE, (3, 1)), jnp.float32)
+    goal = q[0] + jnp.asarray([0.15, -0.1, 0.1, 0.0, 0.1, 0.0])
+    target = chain.tcp(goal)[0]
+    e = jax.vmap(lambda q1: chain.tcp(q1)[0] - target)(q)
+    radius = 0.5 * float(jnp.linalg.norm(e[0]))
+    dq = jnp.stack([goal - q[0], 0.1 * (goal - q[1]), goal - q[2]])
+    e = e.at[2].set(0.1 * e[2])  # the third starts inside the zone
+    cut = stop_outside(q, e, dq, radius)
+    assert float(jnp.max(jnp.abs(cut[0] - dq[0]))) > 1e-3  # the jump: shortened
+    np.testing.assert_array_equal(cut[1:], dq[1:])  # the others: unchanged
+    grad = jax.grad(lambda d: jnp.sum(stop_outside(q, e, d, radius)))(dq)
+    assert np.all(np.asarray(grad[1:]) == 1.0) and 0.0 < float(grad[0, 0]) < 1.0
+
+
+def test_the_orient_first_guard_is_deployed_only_and_keeps_the_actor_trainable():
+    """The saved orient_first network shortens a learnt step that jumps into the 6-cm zone
+    (its TCP lands just inside the edge); the trainer's network has no guard, with the
+    loose rule or without it, and the actor's gradient is non-zero in both."""
+    from mara_mjx.envs.task_space import ORIENT_FIRST_NEAR
+
+    env = mara_mjx.make("MARAOrient")
+    config = for_env(PRESETS["orient_first"], env)
+    chain = nominal_chain()
+    q = jnp.asarray(POSTURE, jnp.float32)
+    far = chain.tcp(q + jnp.asarray([0.3, -0.2, 0.2, 0.0, 0.2, 0.0]))[0]
+    obs = jnp.zeros(env.observation_size).at[:6].set(q).at[6:9].set(chain.tcp(q)[0] - far)
+    obs = obs.at[9].set(1.0)  # quat_err (w, x, y, z): aligned
+    saved = make_network(config, 6)
+    params = saved.init(jax.random.PRNGKey(0), obs, obs)
+    # a learnt correction that jumps: the actor's output (its last layer's bias, the
+    # kernel zero) is the step onto the target's posture less the IK step, over the gate
+    from mara_mjx.ppo.networks import ik_gate, ik_inputs
+
+    step = jnp.asarray([0.3, -0.2, 0.2, 0.0, 0.2, 0.0])
+    last = params["params"]["actor"]["Dense_2"]
+    last["kernel"] = jnp.zeros_like(last["kernel"])
+    last["bias"] = (step - ik_inputs(saved, obs)[0]) / ik_gate(obs, config.ik_gate)
+    unguarded = make_network(config, 6).clone(ik_guard=False)
+    jump, *_ = forward(unguarded, params, None, obs, 10.0)
+    assert float(jnp.linalg.norm(chain.tcp(jump)[0] - far)) < 1e-3  # it would land on it
+    mean, *_ = forward(saved, params, None, obs, 10.0)
+    e_after = chain.tcp(mean)[0] - far
+    assert saved.ik_guard
+    assert float(jnp.linalg.norm(obs[6:9])) > ORIENT_FIRST_NEAR
+    assert 0.05 < float(jnp.linalg.norm(e_after)) < ORIENT_FIRST_NEAR, e_after
+    for loose in (True, False):
+        trainer = make_network(config.replace(train_ik_orient_loose=loose), 6, training=True)
+        assert not trainer.ik_guard
+
+        def loss(p, trainer=trainer):
+            return jnp.sum(forward(trainer, p, None, obs, 10.0)[0])
+
+        grad = jax.grad(loss)(params)["params"]["actor"]
+        assert sum(float(jnp.abs(g).sum()) for g in jax.tree.leaves(grad)) > 0.0, loose
+
+
+def test_one_update_with_the_stored_ik_step_matches_computing_it_in_every_pass(monkeypatch):
+    """The trainer stores each sample's IK step (ppo.train's ik_inputs) and passes it to
+    the value passes and the minibatches; computing it in every forward pass instead (the
+    stored value patched out) gives the same update (float tolerance: XLA may fuse the two
+    programs differently)."""
+    import mara_mjx.ppo.train as ppo_train
+    from mara_mjx.ppo import make_train
+
+    env = mara_mjx.make("MARAOrient")
+    config = PRESETS["orient_first"].replace(
+        num_envs=8, num_steps=4, num_minibatches=2, update_epochs=2, total_timesteps=8 * 4 * 2
+    )
+
+    def one_update():
+        trainer = make_train(env, config, updates_per_call=1, devices=1)
+        state, _ = trainer.run(trainer.init(jax.random.key(0)), 1)
+        return jax.tree.leaves(jax.device_get(state.params))
+
+    stored = one_update()
+    monkeypatch.setattr(ppo_train, "ik_inputs", lambda network, obs: None)
+    computed = one_update()
+    moved = max(float(np.abs(a - b).max()) for a, b in zip(stored, computed, strict=True))
+    assert moved < 1e-5, moved
+    init = make_train(env, config, updates_per_call=1, devices=1).init(jax.random.key(0))
+    start = jax.tree.leaves(jax.device_get(init.params))
+    assert max(float(np.abs(a - b).max()) for a, b in zip(stored, start, strict=True)) > 1e-4

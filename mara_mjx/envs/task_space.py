@@ -123,6 +123,7 @@ def stop_outside(
     as the env clips its targets: one forward kinematics per halving."""
     chain = nominal_chain()
     lo6, hi6 = (jnp.asarray(x, jnp.float32) for x in joint_ranges())
+    step = dq  # the gradient flows through the step itself, not through alpha
     q, e, dq = (jax.lax.stop_gradient(x) for x in (q, e, dq))
 
     def one(q1: jax.Array, e1: jax.Array, dq1: jax.Array) -> jax.Array:
@@ -140,9 +141,10 @@ def stop_outside(
 
         jumps = (jnp.sum(jnp.square(e1)) >= radius**2) & ~outside(jnp.ones(()))
         _, hi = jax.lax.fori_loop(0, iters, halve, (jnp.zeros(()), jnp.ones(())))
-        return jnp.where(jumps, hi * dq1, dq1)
+        return jnp.where(jumps, hi, 1.0)
 
-    return jnp.vectorize(one, signature="(6),(3),(6)->(6)")(q, e, dq)
+    alpha = jnp.vectorize(one, signature="(6),(3),(6)->()")(q, e, dq)
+    return alpha[..., None] * step
 
 
 @functools.lru_cache(maxsize=1)

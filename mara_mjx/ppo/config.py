@@ -176,9 +176,10 @@ class PPOConfig(_ConfigMixin):
     q + envs/task_space.finish_step(q, e), a position-only damped-least-squares step
     toward 1 cm short of the target, then onto it. For an evaluation that stops at the
     first step within a position tolerance, as the paper's: the learnt policy's own last
-    step lands a few millimetre off (MARA: up to 3.73 mm on 10 seeds; with 0.06, 0.16 mm
-    on the same episodes: benchmarks/NOTES.md sections 27-28). The trainer's network and
-    the env are unchanged (training is the same with or without it). Needs
+    step lands a few millimetre off (MARA `default`: up to 3.73 mm per axis on 10 seeds;
+    with 0.06: worst 0.25 mm on 15 fresh seeds, benchmarks/NOTES.md sections 27-28). The
+    trainer's network and the env are unchanged (training is the same with or without
+    it). Needs
     relative_actions and a MARA observation without an orientation (on the Orient tasks
     ik_orient_first's 6-cm zone is the same finish for the whole pose). The policy needs
     the arm's Jacobian: `python -m mara_mjx.export --drop-ik-finish` exports the learnt
@@ -401,6 +402,11 @@ class PPOConfig(_ConfigMixin):
             raise ValueError(
                 f"ik_finish={self.ik_finish} replaces the joint displacement near the target "
                 "and needs relative_actions=true; set it, or ik_finish=0"
+            )
+        if self.ik_finish > 0.0 and self.max_joint_step > 0.0:
+            raise ValueError(
+                f"ik_finish={self.ik_finish} takes IK steps of up to 0.25 rad per joint, which "
+                f"max_joint_step={self.max_joint_step} would squash; set one of them to 0"
             )
         if self.ik_wrap and not self.ik_prior:
             raise ValueError(
@@ -673,12 +679,13 @@ PRESETS["staggered"] = PRESETS["random_target"]
 # MARA, the train CLI's choice there (issue 11, benchmarks/NOTES.md sections 27-28): the
 # default's training, and a deployed policy whose last 6 cm are the IK step's
 # (ik_finish). The default's policies enter the paper's 5 mm box from their own last
-# step, up to 3.73 mm off per axis (10 seeds); the same policies with the finish enter
-# at most 0.16 mm off (benchmarks/results/paper_table/). Its policies need the arm's
+# step, up to 3.73 mm off per axis (10 seeds); with the finish, 15 fresh seeds enter at
+# most 0.25 mm off (benchmarks/results/paper_table/). Its policies need the arm's
 # Jacobian: export them with --drop-ik-finish (the learnt policy, the default's accuracy).
 PRESETS["ik_finish"] = PRESETS["default"].replace(ik_finish=0.06)
 # MARACollision, the train CLI's choice there: `staggered` with the same finish (its
-# policies, 5 seeds: worst 2.17 mm per axis without it, 0.68 mm with it; no collision).
+# policies, 5 seeds: worst 2.17 mm per axis without it, 0.68 mm with it; 10 fresh seeds
+# with it: 0.17 mm; no collision).
 PRESETS["staggered_ik_finish"] = PRESETS["staggered"].replace(ik_finish=0.06)
 
 # The random-target tasks with an orientation (issue 12): random_target plus the recipe of

@@ -74,6 +74,7 @@ class ActorCritic(nn.Module):
     ik_gate_roll: bool = False
     ik_orient_loose: bool = False
     ik_finish: float = 0.0
+    ik_guard: bool = False
 
     @nn.compact
     def __call__(
@@ -112,7 +113,7 @@ class ActorCritic(nn.Module):
                         gate = jnp.where(wrapping, 0.0, gate)
                     delta = delta * gate[..., None]
                 delta = delta + ik_step
-                if self.ik_orient_first and self.ik_gate_wrap and not self.ik_orient_loose:
+                if self.ik_guard and self.ik_orient_first and self.ik_gate_wrap:
                     # the deployed rule: a learnt step stops at the edge of the zone where
                     # the IK step alone makes the last approach (PPOConfig.ik_orient_first)
                     from mara_mjx.envs.task_space import ORIENT_FIRST_NEAR, stop_outside
@@ -197,7 +198,8 @@ def make_network(config: Any, action_size: int, training: bool = False) -> Actor
     """The ActorCritic a PPOConfig describes (the one constructor: training, policies and
     checkpoints all build it here). `training`: the trainer's network, with the
     training-only parts of the config (train_ik_gate_roll, train_ik_orient_loose) and
-    without the deployed-only one (ik_finish); policies run the other way round."""
+    without the deployed-only ones (ik_finish, the guard of ik_orient_first's zone);
+    policies run the other way round."""
     return ActorCritic(
         action_size,
         tuple(config.hidden_sizes),
@@ -217,6 +219,7 @@ def make_network(config: Any, action_size: int, training: bool = False) -> Actor
         training and config.train_ik_gate_roll,
         training and config.ik_orient_first and config.train_ik_orient_loose,
         0.0 if training else config.ik_finish,
+        not training and config.ik_orient_first,  # its deployed guard (stop_outside)
     )
 
 

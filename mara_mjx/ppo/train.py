@@ -179,12 +179,7 @@ def make_train(
     saved = make_network(config, benv.action_size)  # the policy training saves (the probe's)
     optimizer = make_optimizer(config)
     lr_at_update = make_lr_schedule(config)
-    obs_size = benv.observation_size
-    if any(i >= obs_size for i in config.hidden_obs):
-        raise ValueError(
-            f"hidden_obs={config.hidden_obs} names entries beyond the observation of "
-            f"{obs_size} values (valid indices 0..{obs_size - 1})"
-        )
+    obs_size = benv.observation_size  # hidden_obs within it: checked by for_env
 
     curriculum = reward_curriculum(config.train_reward)
     until = max(1.0, config.train_reward_until * config.num_updates)

@@ -23,9 +23,10 @@ code; the GPU run's own evaluation predates the guard).
 Times, one H100: MARA seeds 0-4 ran alone, first on a fresh machine (42.6 s to the first
 probe within 1 mm, every seed); seeds 5-9 and 10-14 of MARA ran beside the two Orient
 studies (4 programs sharing the GPU), MARACollision's two programs side by side, the
-Orient tasks' alone and one after the other. Every seed of every task was within 1 mm at
-its study's first probe, so these times are the first probe's: compile plus the first
-chunk of updates, not the policy's own time to accuracy. The user's command on the same
+Orient tasks' alone and one after the other. The probes come every 20 updates and all
+seeds of a program crossed 1 mm in the same interval (update 140 MCO, 120 MAO, 60 MARA
+0-4, 80 MARACollision 5-9); the first probe came at 34-41 s, the second about 10 s later,
+then 20 updates took about 1.1 s: compile dominates these times (NOTES 28 part 5). The user's command on the same
 code: `cli28/` and the README's "Training".
 
 Collisions: MARA seed 7 collides twice per episode on the way in (each collision resets
