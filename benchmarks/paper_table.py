@@ -103,9 +103,9 @@ def main(specs: list[str]) -> None:
         "",
         "| task | preset | seeds | reached | position mean (mm) | position worst seed (mm)"
         " | paper (mm) | orientation mean (deg) | orientation worst seed (deg) | paper (deg) |"
-        " hold orientation worst (deg) | collisions / episode (hold, worst seed) |"
-        " 5 mm at (s, median) | 1 mm at (s, median) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---:|---:|",
+        " hold position worst (mm) | hold orientation worst (deg) |"
+        " collisions / episode (hold, worst seed) | 5 mm at (s, median) | 1 mm at (s, median) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---:|---:|",
     ]
     for task in PAPER:
         if task not in chosen:
@@ -115,6 +115,7 @@ def main(specs: list[str]) -> None:
         pos = np.array([s["position_mm"] for s in ps])
         ori = np.array([s["orientation_deg"] for s in ps])
         hold = np.array([s["hold_orientation_deg"] for s in ps])
+        hold_pos = np.array([s["hold_position_mm"] for s in ps])
         orient = PAPER[task][1] is not None
         preset = r.get("preset", "default")
         seeds = [s["seed"] for s in ps]
@@ -131,6 +132,7 @@ def main(specs: list[str]) -> None:
             fmt(ori.mean(0)) if orient else "",
             fmt(ori.max(0)) if orient else "",
             fmt(PAPER[task][1]) if orient else "",
+            fmt(hold_pos.max(0)),
             fmt(hold.max(0)) if orient else "",
             f"{max(s['hold_collisions_per_episode'] for s in ps):g}",
             median_time([s["t5"] for s in ps]),
