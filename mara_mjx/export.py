@@ -4,7 +4,7 @@ an ONNX model (the suffix chooses).
     python -m mara_mjx.export runs/MARA-.../ OUT.npz        # newest checkpoint of a run
     python -m mara_mjx.export runs/MARA-.../checkpoints/ckpt_00000100.npz OUT.npz
     python -m mara_mjx.export runs/MARA-.../ OUT.onnx       # ONNX (pip install ".[onnx]")
-    python -m mara_mjx.export runs/MARA-.../ OUT.npz --drop-ik-finish   # MARA's preset
+    python -m mara_mjx.export runs/MARA-.../ OUT.onnx --drop-ik-finish  # MARA's preset
 
     from mara_mjx.export import load_exported
     policy = load_exported("OUT.npz")
@@ -29,6 +29,9 @@ File layout (`np.load(path)`; no pickles):
                        hidden_sizes, activation, normalize_obs, obs_clip, obs_var_eps,
                        relative_actions (add obs[..., :action_size] to the MLP output),
                        max_joint_step (> 0: the MLP output d becomes m tanh(d / m) first),
+                       ik_finish (the IK finish of PPOConfig.ik_finish: its radius, the
+                       arm's chain and task_space's constants; mara_mjx/ik_numpy.py runs
+                       it on the MLP's joint displacement before q is added),
                        ik_finish_dropped (m; > 0: the checkpoint's IK finish within that
                        distance of the target is not in this file: --drop-ik-finish),
                        hidden_obs (indices set to 0 after normalisation),
@@ -68,9 +71,11 @@ def export_policy(
     """Write the deterministic policy of `checkpoint` (a checkpoint file, or a run folder:
     its newest checkpoint) to `out_path`, atomically: .npz (numpy) or .onnx (an ONNX
     model, needs the `onnx` package). A policy with an IK finish (PPOConfig.ik_finish, the
-    MARA preset's) is refused unless `drop_ik_finish`: then the learnt policy alone is
-    written (the meta's ik_finish_dropped says so). Raises ExportError (or
-    mara_mjx.ppo.CheckpointError, also a ValueError) with what is wrong."""
+    position tasks' presets) keeps it in .npz (the arm's chain in the meta's ik_finish,
+    run by mara_mjx/ik_numpy.py); .onnx refuses it unless `drop_ik_finish`, which writes
+    the learnt policy alone (the meta's ik_finish_dropped says so) in either format.
+    Raises ExportError (or mara_mjx.ppo.CheckpointError, also a ValueError) with what is
+    wrong."""
     import mara_mjx
     from mara_mjx import runs
     from mara_mjx.envs.arm import JOINTS
@@ -111,14 +116,16 @@ def export_policy(
             )
 
     finish = float(getattr(config, "ik_finish", 0.0))
-    if finish > 0.0 and not drop_ik_finish:
+    if finish > 0.0 and out_path.suffix == ".onnx" and not drop_ik_finish:
         raise ExportError(
             f"{str(source)!r} ends its reach with an IK finish (ik_finish={finish} m), which "
-            "needs the arm's Jacobian (mara_mjx.envs.task_space.finish_step); .npz/.onnx "
-            "carry the learnt joint-space policy only. Pass --drop-ik-finish to export it "
-            "without the finish (its last step into a 5 mm box then lands a few mm off: "
+            "needs the arm's forward kinematics and Jacobian (mara_mjx.envs.task_space."
+            "finish_step); the .onnx graph carries the learnt joint-space policy only. "
+            "Export .npz (its numpy policy runs the finish), pass --drop-ik-finish to export "
+            "the learnt policy alone (its last step into a 5 mm box then lands a few mm off: "
             "README, Training), or use mara_mjx.ppo.load_policy(checkpoint) in JAX"
         )
+    keep_finish = finish > 0.0 and not drop_ik_finish
 
     env_name, env_config = meta["env_name"], meta["env_config"]
     try:
@@ -158,7 +165,7 @@ def export_policy(
         "obs_var_eps": OBS_VAR_EPS,
         "relative_actions": bool(config.relative_actions),
         "max_joint_step": float(getattr(config, "max_joint_step", 0.0)),
-        "ik_finish_dropped": finish,
+        "ik_finish_dropped": 0.0 if keep_finish else finish,
         "hidden_obs": [int(i) for i in config.hidden_obs],
         "quat_index": int(config.quat_index) if config.canonical_quat else -1,
         "observation_layout": env.observation_layout,
@@ -175,6 +182,10 @@ def export_policy(
             "env_steps": progress.get("env_steps"),
         },
     }
+    if keep_finish:  # the numpy policy runs it (mara_mjx/ik_numpy.py)
+        from mara_mjx.ik_numpy import finish_meta
+
+        export_meta["ik_finish"] = finish_meta(finish)
     out[META_KEY] = np.array(json.dumps(export_meta))
     if out_path.suffix == ".onnx":
         from mara_mjx import onnx_policy
@@ -273,6 +284,11 @@ class NumpyPolicy:
             step = float(self.meta.get("max_joint_step", 0.0))
             if step > 0.0:  # PPOConfig.max_joint_step
                 x = step * np.tanh(x / step)
+            if self.meta.get("ik_finish"):  # PPOConfig.ik_finish (mara_mjx/ik_numpy.py)
+                from mara_mjx.ik_numpy import NumpyFinish
+
+                q, e = raw[..., : self.action_size], raw[..., 6:9]
+                x = NumpyFinish(self.meta["ik_finish"])(q, e, x)
             x = x + raw[..., : self.action_size]
         if clip:
             x = np.clip(x, self.joint_lower, self.joint_upper)
@@ -322,8 +338,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--drop-ik-finish",
         action="store_true",
-        help="export a policy trained with an IK finish (ik_finish, the MARA preset's) "
-        "without it: the learnt joint-space policy alone",
+        help="export a policy with an IK finish (ik_finish, the position tasks' presets) "
+        "without it: the learnt joint-space policy alone (.onnx needs it; .npz keeps the "
+        "finish otherwise)",
     )
     args = parser.parse_args(argv)
     try:

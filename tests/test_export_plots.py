@@ -37,7 +37,9 @@ def _run(module: str, *args: str) -> subprocess.CompletedProcess:
 
 def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bool = False, **ppo):
     """A run folder with one checkpoint of random (untrained) params; returns its path.
-    `ppo`: further PPOConfig fields."""
+    `ppo`: further PPOConfig fields; `constant_actor=True` zeroes the actor's last kernel
+    (its output is its bias, whatever the observation)."""
+    constant = ppo.pop("constant_actor", False)
     env = mara_mjx.make(env_name)
     config = PPOConfig(
         hidden_sizes=(32, 16),
@@ -59,6 +61,9 @@ def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bo
     params = jax.tree.unflatten(
         treedef, [0.5 * jax.random.normal(k, x.shape) for k, x in zip(keys, leaves, strict=True)]
     )
+    if constant:
+        last = params["params"]["actor"][f"Dense_{len(config.hidden_sizes)}"]
+        last["kernel"] = jnp.zeros_like(last["kernel"])
     state = {"params": params}
     if normalize:
         mean_key, var_key = jax.random.split(stats_key)
@@ -278,26 +283,70 @@ def test_export_refuses_ik_prior_policies(tmp_path):
     assert not (tmp_path / "policy.npz").exists()
 
 
-def test_export_refuses_an_ik_finish_policy_unless_told_to_drop_the_finish(tmp_path, capsys):
-    """The MARA preset's IK finish needs the arm's Jacobian: refused with the way out named
-    (nothing written); with --drop-ik-finish the learnt policy alone is written, equal to
-    the checkpoint's policy where the finish is off (farther than ik_finish) and recorded
-    in the meta."""
+def test_export_keeps_the_ik_finish_in_npz_refuses_it_in_onnx_and_drops_it_on_request(
+    tmp_path, capsys
+):
+    """The position tasks' presets end with an IK finish (PPOConfig.ik_finish). The .npz
+    keeps it (the arm's chain in its meta, mara_mjx/ik_numpy.py): the numpy policy equals
+    the checkpoint's JAX policy far from the target, within the zone (the IK step) and
+    where the learnt step jumps into it (the guard). .onnx refuses it with the ways out
+    named, writing nothing; --drop-ik-finish writes the learnt policy alone."""
+    from mara_mjx.envs.task_space import nominal_chain
+
     path = make_run(tmp_path / "run", "MARA", True, relative=True, ik_finish=0.06)
-    out = tmp_path / "policy.npz"
-    assert run_cli(export_main, "export", [str(tmp_path / "run"), str(out)]) == 2
-    err = capsys.readouterr().err
-    assert "--drop-ik-finish" in err and "ik_finish=0.06" in err, err
-    assert not out.exists()
-    argv = [str(tmp_path / "run"), str(out), "--drop-ik-finish"]
-    assert run_cli(export_main, "export", argv) == 0
-    policy = load_exported(out)
-    assert policy.meta["ik_finish_dropped"] == 0.06
     reference = make_policy(path)
     assert reference.network.ik_finish == 0.06
-    obs = np.random.default_rng(2).normal(0.0, 1.0, (16, policy.observation_size))
-    obs = obs.astype(np.float32)
-    obs[:, 6:9] = 0.2  # 35 cm from the target: no finish
-    np.testing.assert_allclose(policy(obs), np.asarray(reference(jnp.asarray(obs))), atol=1e-5)
-    obs[:, 6:9] = 0.01  # within 6 cm: the checkpoint's policy finishes, the file does not
-    assert np.abs(policy(obs) - np.asarray(reference(jnp.asarray(obs)))).max() > 1e-3
+    rng = np.random.default_rng(2)
+    obs = rng.normal(0.0, 1.0, (256, 12)).astype(np.float32)
+    obs[:, :6] = rng.uniform(-1.5, 1.5, (256, 6))  # inside the joint limits
+    direction = rng.normal(size=(256, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    obs[:, 6:9] = direction * rng.uniform(0.0, 0.4, (256, 1))  # |e| up to 40 cm
+    want = np.asarray(reference(jnp.asarray(obs)))
+
+    out = tmp_path / "policy.npz"
+    assert run_cli(export_main, "export", [str(tmp_path / "run"), str(out)]) == 0
+    policy = load_exported(out)
+    assert policy.meta["ik_finish"]["radius"] == 0.06 and policy.meta["ik_finish_dropped"] == 0
+    np.testing.assert_allclose(policy(obs), want, atol=1e-4)
+    assert (np.linalg.norm(obs[:, 6:9], axis=1) < 0.06).sum() >= 10  # finish steps
+    # where the learnt step jumps into the zone (the guard): an actor whose output is
+    # its bias b, and targets where q + b puts the TCP (5-40 cm away)
+    constant = make_run(tmp_path / "constant", "MARA", True, relative=True, ik_finish=0.06,
+                        constant_actor=True)  # fmt: skip
+    learnt = np.asarray(
+        make_policy(constant).replace(config=reference.config.replace(ik_finish=0.0))(
+            jnp.asarray(obs)
+        )
+    ) - obs[:, :6]  # fmt: skip
+    assert np.ptp(learnt, axis=0).max() < 1e-5  # the same step everywhere
+    chain = nominal_chain()
+    land = np.asarray(jax.vmap(lambda q: chain.tcp(q)[0])(jnp.asarray(obs[:, :6] + learnt)))
+    here = np.asarray(jax.vmap(lambda q: chain.tcp(q)[0])(jnp.asarray(obs[:, :6])))
+    jumps = obs.copy()
+    jumps[:, 6:9] = here - land  # the target where the step lands
+    far = np.linalg.norm(jumps[:, 6:9], axis=1) > 0.07
+    jumps = jumps[far]
+    assert len(jumps) >= 20
+    run_cli(export_main, "export", [str(tmp_path / "constant"), str(tmp_path / "c.npz")])
+    guarded = load_exported(tmp_path / "c.npz")(jumps)
+    np.testing.assert_allclose(guarded, np.asarray(make_policy(constant)(jnp.asarray(jumps))),
+                               atol=1e-4)  # fmt: skip
+    moved = guarded - jumps[:, :6]
+    assert np.all(np.abs(moved).max(axis=1) < np.abs(learnt[far]).max(axis=1) - 1e-3)  # cut
+
+    onnx_out = tmp_path / "policy.onnx"
+    assert run_cli(export_main, "export", [str(tmp_path / "run"), str(onnx_out)]) == 2
+    err = capsys.readouterr().err
+    assert "--drop-ik-finish" in err and ".npz" in err and "ik_finish=0.06" in err, err
+    assert not onnx_out.exists()
+
+    dropped = tmp_path / "learnt.npz"
+    argv = [str(tmp_path / "run"), str(dropped), "--drop-ik-finish"]
+    assert run_cli(export_main, "export", argv) == 0
+    alone = load_exported(dropped)
+    assert alone.meta["ik_finish_dropped"] == 0.06 and "ik_finish" not in alone.meta
+    far_obs = obs[np.linalg.norm(obs[:, 6:9], axis=1) > 0.06]
+    np.testing.assert_allclose(alone(far_obs), policy(far_obs), atol=1e-4)  # no jumps here
+    near_obs = obs[np.linalg.norm(obs[:, 6:9], axis=1) < 0.06]
+    assert np.abs(alone(near_obs) - policy(near_obs)).max() > 1e-3  # no finish

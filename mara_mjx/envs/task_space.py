@@ -87,6 +87,8 @@ FINISH_HOLD = ORIENT_FIRST_HOLD
 the TCP is within FINISH_WITHIN x FINISH_HOLD, then at the target itself."""
 FINISH_WITHIN = 1.2
 """finish_step: the aim moves onto the target within this multiple of FINISH_HOLD."""
+STOP_OUTSIDE_ITERS = 12
+"""stop_outside: bisection halvings (the TCP stops within 2^-12 of the step past the edge)."""
 WRAP_NEAR = 0.02
 """pose_step(wrap_last=True): m, the TCP distance within which the last joint may be
 taken the long way round (farther, the full Newton step is no estimate of where it ends)."""
@@ -111,7 +113,7 @@ def joint_ranges() -> tuple[tuple[float, ...], tuple[float, ...]]:
 
 
 def stop_outside(
-    q: jax.Array, e: jax.Array, dq: jax.Array, radius: float, iters: int = 12
+    q: jax.Array, e: jax.Array, dq: jax.Array, radius: float, iters: int = STOP_OUTSIDE_ITERS
 ) -> jax.Array:
     """dq (..., 6), shortened where it would take the TCP from outside `radius` (m) of the
     target to deeper inside: to alpha dq, where bisection (`iters` halvings) finds the

@@ -179,11 +179,11 @@ class PPOConfig(_ConfigMixin):
     step lands a few millimetre off (MARA `default`: up to 3.73 mm per axis on 10 seeds;
     with 0.06: worst 0.25 mm on 15 fresh seeds, benchmarks/NOTES.md sections 27-28). The
     trainer's network and the env are unchanged (training is the same with or without
-    it). Needs
-    relative_actions and a MARA observation without an orientation (on the Orient tasks
-    ik_orient_first's 6-cm zone is the same finish for the whole pose). The policy needs
-    the arm's Jacobian: `python -m mara_mjx.export --drop-ik-finish` exports the learnt
-    policy alone. 0: off."""
+    it). A learnt step that would jump into the zone stops just inside its edge
+    (task_space.stop_outside). Needs relative_actions, no max_joint_step, and a MARA
+    observation without an orientation (on the Orient tasks ik_orient_first's 6-cm zone
+    is the same finish for the whole pose). Export: .npz keeps it (mara_mjx/ik_numpy.py);
+    .onnx needs --drop-ik-finish (the learnt policy alone). 0: off."""
     probe_reach_steps: int = 0
     """> 0: every jitted call of the trainer ends with a deterministic rollout of the
     policy training saves from the env's reset (PROBE_REACH_EPISODES episodes, reset
@@ -681,7 +681,7 @@ PRESETS["staggered"] = PRESETS["random_target"]
 # (ik_finish). The default's policies enter the paper's 5 mm box from their own last
 # step, up to 3.73 mm off per axis (10 seeds); with the finish, 15 fresh seeds enter at
 # most 0.25 mm off (benchmarks/results/paper_table/). Its policies need the arm's
-# Jacobian: export them with --drop-ik-finish (the learnt policy, the default's accuracy).
+# Jacobian: .npz export keeps the finish (numpy); .onnx needs --drop-ik-finish.
 PRESETS["ik_finish"] = PRESETS["default"].replace(ik_finish=0.06)
 # MARACollision, the train CLI's choice there: `staggered` with the same finish (its
 # policies, 5 seeds: worst 2.17 mm per axis without it, 0.68 mm with it; 10 fresh seeds
