@@ -303,8 +303,12 @@ def test_evaluate_cli_on_the_real_driver(real_driver_eval):
 
 # ------------------------------------------------------------------ several seeds
 # TINY (seed 0) with --seeds 2: seeds 0 and 1 vmapped in one program; seed 0 must match
-# the `trained` run.
-SEEDS = [*TINY, "--seeds", "2", "--tensorboard", "false"]
+# a single run. On MARA's `default` preset: with the CLI's own (ik_finish: the saved
+# policy's IK finish in the trainer's probe branch) the seeds-vmapped program deadlocked
+# XLA:CPU (idle in its first device_get) in about 1 run in 3 at O0 and once in a suite
+# run without the O0 flags; 8 of 8 runs without the finish completed (NOTES section 28;
+# the same hang as the IK programs' before). These tests are about the seeds machinery.
+SEEDS = [*TINY, "--seeds", "2", "--tensorboard", "false", "--preset", "default"]
 
 
 @pytest.fixture(scope="session")
@@ -328,9 +332,9 @@ def seeds_run(users_env, tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def single_run(users_env, tmp_path_factory):
-    """The `trained` run (TINY, seed 0) compiled like seeds_run, for their comparison."""
+    """TINY, seed 0, with seeds_run's preset, compiled like it, for their comparison."""
     out = tmp_path_factory.mktemp("single") / "run"
-    proc = run_module(users_env, "mara_mjx.train", *TINY, "--out", str(out))
+    proc = run_module(users_env, "mara_mjx.train", *TINY, "--preset", "default", "--out", str(out))
     assert proc.returncode == 0, proc.stderr[-4000:]
     return out, proc
 
@@ -441,6 +445,7 @@ def test_population_run_trains_checkpoints_and_evaluates(users_env, tmp_path):
     benchmarks/NOTES.md section 18)."""
     out = tmp_path / "run"
     args = [*TINY, "--population", "2", "--tensorboard", "false", "--out", str(out)]
+    args += ["--preset", "default"]  # vmapped members: see SEEDS on the IK finish on CPU
     proc = run_module(users_env, "mara_mjx.train", *args)
     assert proc.returncode == 0, proc.stderr[-4000:]
     config = json.loads((out / "config.json").read_text())
