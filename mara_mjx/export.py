@@ -16,10 +16,13 @@ obs_clip) when the run normalised observations (else z = obs), where obs first h
 quaternion block obs[quat_index:quat_index + 4] multiplied by the sign of its w when the
 run used `canonical_quat` (quat_index >= 0 in the meta), z[..., hidden_obs] = 0,
 then the actor's tanh MLP (linear output layer), plus obs[..., :6] (the current joint
-positions) when the run used `relative_actions`. The action is an absolute joint target
-(rad) for motor1..motor6; the env clips it to the joint limits (`policy(obs, clip=True)`
-does the same here). The .onnx file computes the same graph (`mara_mjx/onnx_policy.py`):
-input "obs" (N, obs_size) float32, outputs "action" and "action_clipped" (N, 6) rad.
+positions) when the run used `relative_actions`; a policy with an IK finish
+(PPOConfig.ik_finish; format mara_mjx.export/2, meta "ik_finish") first replaces that
+displacement near the target by the IK step (mara_mjx/ik_numpy.py). The action is an
+absolute joint target (rad) for motor1..motor6; the env clips it to the joint limits
+(`policy(obs, clip=True)` does the same here). The .onnx file computes the same graph
+without a finish (`mara_mjx/onnx_policy.py`; a policy with one is refused): input "obs"
+(N, obs_size) float32, outputs "action" and "action_clipped" (N, 6) rad.
 
 File layout (`np.load(path)`; no pickles):
     layer_<i>/kernel   (in, out) float32, i = 0 .. len(hidden_sizes)   y = x @ kernel + bias
@@ -56,6 +59,10 @@ import numpy as np
 from mara_mjx.npzmeta import META_KEY, NPZ_ERRORS, read_npz_with_meta
 
 FORMAT = "mara_mjx.export/1"
+FORMAT_FINISH = "mara_mjx.export/2"
+"""The format of a file that keeps an IK finish (meta "ik_finish"): a reader of /1 alone
+would run the policy without it, so such files say /2 and older readers refuse them."""
+FORMATS = (FORMAT, FORMAT_FINISH)
 SUFFIXES = (".npz", ".onnx")
 OBS_VAR_EPS = 1e-8  # mara_mjx.ppo.networks.normalize
 PROG = "python -m mara_mjx.export"
@@ -153,7 +160,7 @@ def export_policy(
         out["obs_var"] = np.asarray(policy.obs_stats.var, np.float32)
     progress = meta.get("progress", {})
     export_meta = {
-        "format": FORMAT,
+        "format": FORMAT_FINISH if keep_finish else FORMAT,
         "env_name": env_name,
         "env_config": env_config,
         "observation_size": int(meta["observation_size"]),
@@ -307,9 +314,9 @@ def load_exported(path: str | os.PathLike) -> NumpyPolicy:
         raise ExportError(
             f"{str(path)!r} is corrupt or not an exported mara_mjx policy: {e}"
         ) from e
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+    if not isinstance(meta, dict) or meta.get("format") not in FORMATS:
         found = meta.get("format") if isinstance(meta, dict) else None
-        raise ExportError(f"{str(path)!r} has format {found!r}, expected {FORMAT!r}")
+        raise ExportError(f"{str(path)!r} has format {found!r}, expected one of {FORMATS}")
     return _from_arrays(arrays, meta, str(path))
 
 

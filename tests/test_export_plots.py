@@ -308,7 +308,13 @@ def test_export_keeps_the_ik_finish_in_npz_refuses_it_in_onnx_and_drops_it_on_re
     assert run_cli(export_main, "export", [str(tmp_path / "run"), str(out)]) == 0
     policy = load_exported(out)
     assert policy.meta["ik_finish"]["radius"] == 0.06 and policy.meta["ik_finish_dropped"] == 0
+    assert policy.meta["format"] == "mara_mjx.export/2"  # a /1 reader refuses it
     np.testing.assert_allclose(policy(obs), want, atol=1e-4)
+    np.testing.assert_allclose(policy(obs[7]), policy(obs[7:8])[0], atol=1e-6)  # one obs
+    from mara_mjx import onnx_policy
+
+    with pytest.raises(ValueError, match="--drop-ik-finish"):
+        onnx_policy.build_model(policy)  # the graph cannot run the finish
     assert (np.linalg.norm(obs[:, 6:9], axis=1) < 0.06).sum() >= 10  # finish steps
     # where the learnt step jumps into the zone (the guard): an actor whose output is
     # its bias b, and targets where q + b puts the TCP (5-40 cm away)
@@ -328,12 +334,24 @@ def test_export_keeps_the_ik_finish_in_npz_refuses_it_in_onnx_and_drops_it_on_re
     far = np.linalg.norm(jumps[:, 6:9], axis=1) > 0.07
     jumps = jumps[far]
     assert len(jumps) >= 20
+    # and steps the joint limits clip: the arm joint the step moves most, 0.01 rad from
+    # the stop it moves toward
+    j = int(np.argmax(np.abs(learnt[0, :3])))
+    edge = jumps[:8].copy()
+    toward = policy.joint_lower[j] + 0.01 if learnt[0, j] < 0 else policy.joint_upper[j] - 0.01
+    edge[:, j] = toward
+    assert abs(learnt[0, j]) > 0.1  # the clip moves the landing point
+    clipped = np.clip(edge[:, :6] + learnt[:8], policy.joint_lower, policy.joint_upper)
+    land = np.asarray(jax.vmap(lambda q: chain.tcp(q)[0])(jnp.asarray(clipped)))
+    here = np.asarray(jax.vmap(lambda q: chain.tcp(q)[0])(jnp.asarray(edge[:, :6])))
+    edge[:, 6:9] = here - land
+    jumps = np.concatenate([jumps, edge[np.linalg.norm(edge[:, 6:9], axis=1) > 0.07]])
     run_cli(export_main, "export", [str(tmp_path / "constant"), str(tmp_path / "c.npz")])
     guarded = load_exported(tmp_path / "c.npz")(jumps)
     np.testing.assert_allclose(guarded, np.asarray(make_policy(constant)(jnp.asarray(jumps))),
                                atol=1e-4)  # fmt: skip
     moved = guarded - jumps[:, :6]
-    assert np.all(np.abs(moved).max(axis=1) < np.abs(learnt[far]).max(axis=1) - 1e-3)  # cut
+    assert np.all(np.abs(moved).max(axis=1) < np.abs(learnt[0]).max() - 1e-3)  # cut
 
     onnx_out = tmp_path / "policy.onnx"
     assert run_cli(export_main, "export", [str(tmp_path / "run"), str(onnx_out)]) == 2
@@ -346,6 +364,7 @@ def test_export_keeps_the_ik_finish_in_npz_refuses_it_in_onnx_and_drops_it_on_re
     assert run_cli(export_main, "export", argv) == 0
     alone = load_exported(dropped)
     assert alone.meta["ik_finish_dropped"] == 0.06 and "ik_finish" not in alone.meta
+    assert alone.meta["format"] == "mara_mjx.export/1"
     far_obs = obs[np.linalg.norm(obs[:, 6:9], axis=1) > 0.06]
     np.testing.assert_allclose(alone(far_obs), policy(far_obs), atol=1e-4)  # no jumps here
     near_obs = obs[np.linalg.norm(obs[:, 6:9], axis=1) < 0.06]

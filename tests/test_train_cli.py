@@ -316,7 +316,8 @@ def users_env(cli_env) -> dict[str, str]:
     """cli_env without the suite's LLVM O0 flags: programs compiled as users compile them.
     The --seeds tests run in it: at O0 the seeds-vmapped training program deadlocked (idle
     in its first device_get) in 2 of about 8 runs on this 2-core VM under load, never in 5
-    runs without the flags (benchmarks/NOTES.md section 15; not understood). Every process
+    runs without the flags (benchmarks/NOTES.md section 15; not understood); with the IK
+    finish it also hung once without them (section 28 part 8: SEEDS below). Every process
     whose results these tests compare runs in it, so the comparisons stay like for like."""
     return {**cli_env, "XLA_FLAGS": cli_env["XLA_FLAGS"].replace(FAST_COMPILE_FLAGS, "")}
 

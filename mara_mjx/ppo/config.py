@@ -194,7 +194,8 @@ class PPOConfig(_ConfigMixin):
     deployed rule that takes several steps (ik_orient_first holds the TCP 1 cm off until
     the tool is aligned: benchmarks/NOTES.md section 28; for the Orient tasks' time to
     accuracy pass --probe_reach_steps 100). No effect on training; its GPU cost is not
-    measured yet, so no preset sets it. 0: off."""
+    measured yet, so no preset sets it. With `population`, member 0's probe before the
+    call's exploit step (as its other metrics). 0: off."""
     hidden_obs: tuple[int, ...] = ()
     """Observation indices that neither network sees (set to 0 after normalisation), e.g.
     9 10 11 for the TCP velocity of MARA/MARACollision (13 14 15 for the Orient tasks)."""

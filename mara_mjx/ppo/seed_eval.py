@@ -85,7 +85,8 @@ def summarise(
         "seeds": [r["seed"] for r in rows],
         "eval": eval_config,
         "time_to_accuracy_metric": "wall-clock s from command start until the deterministic "
-        "mean per-axis error (det_error_mm) first drops below the threshold; median over "
+        "mean per-axis error (reach_error_mm with probe_reach_steps > 0, else det_error_mm) "
+        "first drops below the threshold; median over "
         "the seeds that reached it. The seeds of one run train together, so each seed's "
         "time includes the others' work: compare env steps, or single runs, for speed",
         "per_seed": rows,
