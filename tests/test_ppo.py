@@ -1024,3 +1024,20 @@ def test_milestones_use_the_reach_probe_where_the_rows_have_it():
     plain = Milestones()
     plain.update([row(1, 6.0), row(2, 0.5)])
     assert plain.records["5mm"]["update"] == 2 and plain.records["1mm"]["update"] == 2
+
+
+def test_probe_reach_steps_under_seeds_is_each_seeds_own_probe():
+    """probe_reach_steps in a seeds-vmapped program (make_seed_trainer): every seed's
+    `reach_error_mm` is on its last valid row and equals the single run of that seed's."""
+    from mara_mjx.ppo.train import make_seed_trainer
+
+    config = TOY_CONFIG.replace(probe_reach_steps=2)
+    trainer = make_train(PointReach(), config, updates_per_call=2, devices=1)
+    seeds = make_seed_trainer(trainer, (0, 1), devices=1)
+    _, metrics = seeds.run(seeds.init(), 1)
+    reach = np.asarray(metrics["reach_error_mm"])
+    assert reach.shape == (2, 2) and np.isfinite(reach[:, 0]).all() and np.isnan(reach[:, 1]).all()
+    for i, s in enumerate((0, 1)):
+        _, alone = trainer.run(trainer.init(jax.random.key(s)), 1)
+        np.testing.assert_allclose(reach[i, 0], float(alone["reach_error_mm"][0]), rtol=1e-5)
+    assert abs(reach[0, 0] - reach[1, 0]) > 1e-3  # the seeds' own policies
