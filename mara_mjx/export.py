@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import os
 import sys
@@ -258,6 +259,15 @@ class NumpyPolicy:
         """Observation part name -> slice of the last axis."""
         return {p["name"]: slice(p["start"], p["stop"]) for p in self.meta["observation_layout"]}
 
+    @functools.cached_property
+    def _finish(self) -> Any:
+        """The meta's IK finish, built once (ik_numpy.NumpyFinish), or None."""
+        if not self.meta.get("ik_finish"):
+            return None
+        from mara_mjx.ik_numpy import NumpyFinish
+
+        return NumpyFinish(self.meta["ik_finish"])
+
     def __call__(self, obs: Any, clip: bool = False) -> np.ndarray:
         """obs (..., obs_size) raw observation -> action (..., action_size) float32 rad.
         `clip`: clip to the joint limits as the env does (make_policy does not)."""
@@ -291,11 +301,8 @@ class NumpyPolicy:
             step = float(self.meta.get("max_joint_step", 0.0))
             if step > 0.0:  # PPOConfig.max_joint_step
                 x = step * np.tanh(x / step)
-            if self.meta.get("ik_finish"):  # PPOConfig.ik_finish (mara_mjx/ik_numpy.py)
-                from mara_mjx.ik_numpy import NumpyFinish
-
-                q, e = raw[..., : self.action_size], raw[..., 6:9]
-                x = NumpyFinish(self.meta["ik_finish"])(q, e, x)
+            if self._finish is not None:  # PPOConfig.ik_finish (mara_mjx/ik_numpy.py)
+                x = self._finish(raw[..., : self.action_size], raw[..., 6:9], x)
             x = x + raw[..., : self.action_size]
         if clip:
             x = np.clip(x, self.joint_lower, self.joint_upper)

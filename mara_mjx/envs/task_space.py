@@ -97,10 +97,8 @@ taken the long way round (farther, the full Newton step is no estimate of where 
 @functools.lru_cache(maxsize=1)
 def last_joint_range() -> tuple[float, float]:
     """(lower, upper) of the nominal arm's last joint (rad)."""
-    from mara_mjx.envs.arm import load_model
-
-    lo, hi = load_model().jnt_range[5]
-    return float(lo), float(hi)
+    lower, upper = joint_ranges()
+    return lower[5], upper[5]
 
 
 @functools.lru_cache(maxsize=1)
