@@ -495,14 +495,13 @@ def for_env(config: PPOConfig, env: Any) -> PPOConfig:
     layout = getattr(env, "observation_layout", None) or []
     starts = [int(part["start"]) for part in layout if part.get("name") == "quat_err"]
     index = starts[0] if ((config.canonical_quat or config.ik_prior) and starts) else -1
+    where = {part.get("name"): int(part["start"]) for part in layout}
+    arm = where.get("q") == 0 and where.get("e") == 6 and getattr(env, "action_size", 6) == 6
     for option, value, off in (
         ("ik_prior", config.ik_prior, "''"),
         ("ik_finish", config.ik_finish, "0"),
     ):
-        where = {part.get("name"): int(part["start"]) for part in layout}
-        if value and (
-            where.get("q") != 0 or where.get("e") != 6 or getattr(env, "action_size", 6) != 6
-        ):
+        if value and not arm:
             raise ValueError(
                 f"{option}={value!r} needs a MARA arm's observation (q at 0, e at 6) "
                 f"and 6 joint actions; this env has neither; set {option}={off}"
