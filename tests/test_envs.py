@@ -245,3 +245,27 @@ def test_fixed_target_tasks_are_unchanged_bit_for_bit(name, as_users_compile):
             np.testing.assert_allclose(value, expected, rtol=1e-5, atol=1e-6, err_msg=key)
     # the rollout is not trivial: a collision, and the arm near the target at step 1
     assert golden[f"{name}/collided"][3] == 1.0 and golden[f"{name}/distance"][1] < 0.01
+
+
+def test_train_driver_never_loads_mjx_and_mjx_builds_inside_a_trace():
+    """The default (lean) train driver runs without importing mujoco.mjx (its import and
+    the device models were ~2 s of the train CLI's start-up); the MJX paths still build
+    their models on first use, also when that first use is inside a jit trace (concrete
+    arrays, no leaked tracers: a reference check and a kinematics call after it)."""
+    code = """
+import sys, jax, jax.numpy as jnp, mara_mjx
+env = mara_mjx.make("MARACollisionOrient")
+s = jax.jit(env.reset)(jax.random.key(0))
+s = jax.jit(env.step)(s, jnp.zeros(6))
+assert "mujoco.mjx" not in sys.modules, "lean train driver imported mujoco.mjx"
+arm = mara_mjx.make("MARA", kinematics="mjx").arm
+inside = jax.jit(lambda q: arm.pose(q).tcp_pos)(jnp.zeros(6))  # first use under a trace
+outside = arm.pose(jnp.zeros(6)).tcp_pos
+assert "mujoco.mjx" in sys.modules
+assert isinstance(arm.mjx_model.body_mass, jax.Array), type(arm.mjx_model.body_mass)
+print(float(jnp.max(jnp.abs(inside - outside))))
+"""
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "XLA_FLAGS": FAST_COMPILE_FLAGS}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert float(out.stdout.strip().splitlines()[-1]) < 1e-6

@@ -48,21 +48,20 @@ import importlib.resources
 import io
 import itertools
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-# mujoco.mjx prints "Failed to import warp" on import when the optional Warp backend is not
-# installed; mara_mjx uses the JAX backend only, so the message is only noise here.
-with contextlib.redirect_stdout(io.StringIO()):
-    from mujoco import mjx
-
 from mara_mjx.envs.dynamics import Dynamics
 from mara_mjx.envs.geometry import quat_canonical
 from mara_mjx.envs.lean import LeanArm
 from mara_mjx.envs.pose import ArmPose
+
+if TYPE_CHECKING:
+    from mujoco import mjx
 
 
 def asset_path(name: str) -> Path:
@@ -118,6 +117,22 @@ def with_pairs(xml_text: str, pairs: list[tuple[str, str]]) -> str:
     return xml_text[:start] + "\n" + body + "\n  " + xml_text[end:]
 
 
+def _mjx():
+    """mujoco.mjx, imported on first use. It prints "Failed to import warp" on import when
+    the optional Warp backend is not installed; mara_mjx uses the JAX backend only, so the
+    message is only noise here."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        from mujoco import mjx
+    return mjx
+
+
+def _device() -> jax.Device:
+    """This process's first device: MJX's default, jax.devices()[0], belongs to process 0
+    when several processes share a run (mara_mjx.distributed), and a jitted function
+    cannot close over another process's arrays."""
+    return jax.local_devices()[0]
+
+
 class Arm:
     """The MARA arm: its MJX model, ids resolved once, and the two drivers."""
 
@@ -135,23 +150,43 @@ class Arm:
         self.lower = m.jnt_range[self.joint_ids, 0].copy()
         self.upper = m.jnt_range[self.joint_ids, 1].copy()
         self.timestep = float(m.opt.timestep)
-        # This process's first device: MJX's default, jax.devices()[0], belongs to process 0
-        # when several processes share a run (mara_mjx.distributed), and a jitted
-        # function cannot close over another process's arrays.
-        device = jax.local_devices()[0]
-        self.mjx_model = mjx.put_model(m, impl="jax", device=device)
-        self._data0 = mjx.make_data(m, impl="jax", device=device)
-        self.num_contacts = int(self._data0._impl.contact.dist.shape[0])
-        # The 'detect' driver's dynamics: the same model with contacts disabled.
-        free = copy.deepcopy(m)
+
+    # ------------------------------------------------------------ MJX, on first use
+    # The MJX models and data templates are built the first time a path that needs them
+    # runs (the 'mjx' kinematics, the real driver's dynamics): the train driver's default
+    # lean pass never does, and importing mujoco.mjx (trimesh, scipy) and putting two
+    # models on the device were about 2 s of the train CLI's start-up on a GPU host
+    # (benchmarks/NOTES.md section 29). First use may come inside a jit trace: they are
+    # built eagerly all the same (concrete arrays, not tracers that would leak).
+    @functools.cached_property
+    def mjx_model(self) -> mjx.Model:
+        """The MJX model (JAX implementation) on this process's first device."""
+        with jax.ensure_compile_time_eval():
+            return _mjx().put_model(self.mj_model, impl="jax", device=_device())
+
+    @functools.cached_property
+    def _data0(self) -> mjx.Data:
+        with jax.ensure_compile_time_eval():
+            return _mjx().make_data(self.mj_model, impl="jax", device=_device())
+
+    @functools.cached_property
+    def num_contacts(self) -> int:
+        """Contact slots of MJX's collision pass (the listed pairs' manifolds)."""
+        return int(self._data0._impl.contact.dist.shape[0])
+
+    @functools.cached_property
+    def _dynamics(self) -> dict[str, tuple[mjx.Model, mjx.Data]]:
+        """contacts -> the real driver's dynamics model and data template: 'physical' the
+        full model, 'detect' the same with contacts disabled."""
+        free = copy.deepcopy(self.mj_model)
         free.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
-        self._dynamics = {
-            "physical": (self.mjx_model, self._data0),
-            "detect": (
-                mjx.put_model(free, impl="jax", device=device),
-                mjx.make_data(free, impl="jax", device=device),
-            ),
-        }
+        mjx = _mjx()
+        with jax.ensure_compile_time_eval():
+            detect = (
+                mjx.put_model(free, impl="jax", device=_device()),
+                mjx.make_data(free, impl="jax", device=_device()),
+            )
+        return {"physical": (self.mjx_model, self._data0), "detect": detect}
 
     # ------------------------------------------------------------------ poses
     def _pose(self, d: mjx.Data, collided: jax.Array) -> ArmPose:
@@ -169,11 +204,11 @@ class Arm:
         """Kinematics, and collision detection unless `collide` is False (then `collided`
         is False), at joint positions q (6,). Collision costs about 15x kinematics."""
         with jax.named_scope("kinematics"):
-            d = mjx.kinematics(self.mjx_model, self._data0.replace(qpos=q))
+            d = _mjx().kinematics(self.mjx_model, self._data0.replace(qpos=q))
         if not collide:
             return self._pose(d, jnp.array(False))
         with jax.named_scope("collision"):
-            d = mjx.collision(self.mjx_model, d)
+            d = _mjx().collision(self.mjx_model, d)
         return self._pose(d, self._penetrating(d))
 
     # ---------------------------------------------------------------- drivers
@@ -242,7 +277,7 @@ class Arm:
                 physics = self.dynamics.step(model, *physics, ctrl)
             else:
                 start = physics.qpos
-                physics = mjx.step(model, physics.replace(ctrl=ctrl))
+                physics = _mjx().step(model, physics.replace(ctrl=ctrl))
                 if physical:  # the contacts of this substep's start pose
                     hit = hit | self._penetrating(physics)
             return (physics, ref, hit), start
