@@ -38,7 +38,10 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from mara_mjx.envs.arm import _mjx
+
 try:
+    _mjx()  # brax imports mujoco.mjx: first arm's quiet import (no "Failed to import warp")
     from brax.envs.base import Env, State
 except ImportError as e:  # brax is an optional extra
     raise ImportError(
