@@ -204,8 +204,7 @@ def main(argv: list[str] | None = None) -> int:
         trainer = make_train(env, plan.ppo, plan.run.updates_per_call, devices)
     except ValueError as e:
         raise UserError(str(e)) from e
-    # the config with its env-dependent fields resolved (PPOConfig.quat_index): saved with
-    # every checkpoint, so policies load with the same observation reading
+    # env-dependent fields resolved (quat_index): saved with every checkpoint, policies read alike
     plan = dataclasses.replace(plan, ppo=trainer.config)
     if plan.run.seeds > 1:
         host = seeds.Host(run_meta, finish, STOP, elapsed)
@@ -251,6 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     evaluate_fn = make_evaluate(env, plan.eval) if main_process and plan.run.evaluate else None
     try:
         with STOP:  # Ctrl-C: finish the call in flight, write a checkpoint, exit 130
+            trainer = warmup.traced(trainer, state, plan.ppo.seed)  # warm: no tracing
             if state is None:  # compile run (and the evaluation) while init compiles
                 key = jax.random.key(plan.ppo.seed)
                 warm = warmup.start(trainer, key, evaluate_fn, lambda s: make_policy(s, plan.ppo))

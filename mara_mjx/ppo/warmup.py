@@ -95,3 +95,22 @@ def start(
             evaluate_fn.lower(make_policy(state)).compile()
 
     return Background("trainer.run and the evaluation", compile_all)
+
+
+def traced(trainer: Any, state: Any, seed: int) -> Any:
+    """`trainer` with its `run` replaced by the exported program that
+    mara_mjx.ppo.trace_cache keeps beside the compilation cache (loaded on a warm start:
+    no tracing), for `state` or, when None, the state `trainer.init(key(seed))` returns.
+    Prints where the program came from; unchanged where the cache is off."""
+    from mara_mjx.ppo import trace_cache
+
+    folder = trace_cache.cache_folder()
+    if folder is None:
+        return trainer
+    # init's state on the device as the exported run's (committed): the background
+    # compiles below then lower for the arrays training passes (no second compile)
+    init = jax.jit(trainer.init, out_shardings=trace_cache.device_sharding())
+    shapes = jax.eval_shape(init, jax.random.key(seed)) if state is None else state
+    run, status = trace_cache.exported_run(trainer, shapes, folder)
+    print(f"mara_mjx: training program {status}", flush=True)
+    return trainer if run is trainer.run else trainer._replace(init=init, run=run)

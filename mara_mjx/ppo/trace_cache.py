@@ -1,0 +1,181 @@
+"""Skip tracing the training program on a warm start: `trainer.run` kept as a `jax.export`.
+
+JAX's persistent compilation cache (mara_mjx.jax_cache) turns a warm start's XLA compile
+into a file read, but the program is still traced and lowered first: Python running the
+env, the networks and the PPO update through JAX, about 5 s for an `orient_first` run on
+a GPU host, most of what a warm start has left (benchmarks/NOTES.md sections 13 and 29).
+Where that cache is on, the train CLI also keeps `trainer.run` as a serialized
+`jax.export.Exported` (StableHLO) in `<cache folder>/mara_mjx_export/<key>.bin`:
+
+* cold (no file for the key): `jax.export` traces and lowers `run` (what `jax.jit` would
+  do), the file is written (a temporary file renamed into place, so processes sharing
+  the folder read a whole file or none), and training runs that exported program;
+* warm: the file is read (milliseconds) and training runs it; nothing is traced.
+
+Both paths run the same exported program, so a warm run repeats its cold run bit for
+bit, as with the compilation cache alone (tests/test_trace_cache.py also checks it equals
+plain `trainer.run` on the CPU). The key is a hash of everything the traced program
+depends on: the resolved PPO and env configs, the state's shapes and dtypes, the updates
+per call, the jax / jaxlib / mujoco versions, the backend and device kind, JAX's numeric
+settings, and the source of the installed mara_mjx package (an edited mara_mjx never
+loads a stale program). Only for one device (as ppo.warmup) and one seed; anything that
+fails falls back to plain `trainer.run` with one line on stderr.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import os
+import sys
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+FOLDER = "mara_mjx_export"
+FORMAT = 1
+
+
+@functools.lru_cache(maxsize=1)
+def source_hash() -> str:
+    """sha256 of the mara_mjx package's Python sources (paths and bytes)."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        if "__pycache__" in path.parts:
+            continue
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+ENV_VAR = "MARA_MJX_TRACE_CACHE"
+
+
+def cache_folder() -> Path | None:
+    """`<JAX's compilation-cache folder>/mara_mjx_export` when that cache is on, else None
+    (also when the environment variable MARA_MJX_TRACE_CACHE is 0 / false / off)."""
+    if os.environ.get(ENV_VAR, "").strip().lower() in ("0", "false", "no", "off"):
+        return None
+    if not jax.config.jax_enable_compilation_cache:
+        return None
+    folder = jax.config.jax_compilation_cache_dir
+    return Path(folder) / FOLDER if folder else None
+
+
+def cache_key(trainer: Any, state: Any) -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    def pkg(name: str) -> str:
+        try:
+            return version(name)
+        except PackageNotFoundError:
+            return ""
+
+    leaves, treedef = jax.tree.flatten(state)
+    env = getattr(trainer.env, "env", trainer.env)
+    parts = {
+        "format": FORMAT,
+        "versions": [jax.__version__, pkg("jaxlib"), pkg("mujoco"), pkg("mujoco-mjx")],
+        "backend": jax.default_backend(),
+        "device": jax.devices()[0].device_kind,
+        "jax_config": [
+            str(jax.config.jax_default_matmul_precision),
+            bool(jax.config.jax_enable_x64),
+            str(jax.config.jax_default_prng_impl),
+        ],
+        "source": source_hash(),
+        "ppo": trainer.config.to_dict(),
+        "env": env.config.to_dict() if hasattr(env, "config") else repr(env),
+        "env_type": type(env).__qualname__,
+        "updates_per_call": trainer.updates_per_call,
+        "state": [str(treedef), [(tuple(x.shape), str(x.dtype)) for x in leaves]],
+    }
+    text = json.dumps(parts, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+def _write(path: Path, blob: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(blob)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _pack(exported: Any, metric_keys: list[str]) -> bytes:
+    header = json.dumps({"format": FORMAT, "metrics": metric_keys}).encode()
+    return len(header).to_bytes(8, "little") + header + bytes(exported.serialize())
+
+
+def _unpack(blob: bytes) -> tuple[Any, list[str]]:
+    n = int.from_bytes(blob[:8], "little")
+    header = json.loads(blob[8 : 8 + n])
+    if header.get("format") != FORMAT:
+        raise ValueError(f"format {header.get('format')!r}, expected {FORMAT}")
+    return jax.export.deserialize(bytearray(blob[8 + n :])), list(header["metrics"])
+
+
+def exported_run(trainer: Any, state: Any, folder: Path | None) -> tuple[Callable, str]:
+    """(run, status): a jitted `run(state, n)` executing `trainer.run`'s exported program
+    (module docstring) for states shaped like `state` (arrays or ShapeDtypeStructs), and
+    'loaded <file>', 'exported <file>', or why plain `trainer.run` is returned instead
+    ('off: ...' or 'failed: ...')."""
+    if folder is None:
+        return trainer.run, "off: no compilation cache"
+    if trainer.env.mesh is not None or jax.device_count() != 1:
+        return trainer.run, "off: several devices"
+    try:
+        leaves, treedef = jax.tree.flatten(state)
+        path = Path(folder) / f"{cache_key(trainer, state)}.bin"
+        status = f"loaded {path}"
+        try:
+            exported, metric_keys = _unpack(path.read_bytes())
+        except FileNotFoundError:
+            exported, metric_keys = None, []
+        except Exception as e:  # a damaged or foreign file: export again, replace it
+            print(f"mara_mjx: ignoring {path}: {e}", file=sys.stderr)
+            exported = None
+        if exported is None:
+            metric_keys = []
+
+            def flat_run(flat: list[jax.Array], n: jax.Array) -> list[jax.Array]:
+                new_state, metrics = trainer.run(jax.tree.unflatten(treedef, flat), n)
+                if not all(isinstance(v, jax.Array) for v in metrics.values()):
+                    raise TypeError("metrics must be a flat dict of arrays")
+                metric_keys[:] = sorted(metrics)
+                return [*jax.tree.leaves(new_state), *(metrics[k] for k in metric_keys)]
+
+            n = jax.ShapeDtypeStruct((), jnp.int32)
+            shapes = [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves]
+            exported = jax.export.export(jax.jit(flat_run))(shapes, n)
+            _write(path, _pack(exported, metric_keys))
+            status = f"exported {path}"
+    except Exception as e:  # never stop training over a cache
+        print(f"mara_mjx: training program not cached ({e})", file=sys.stderr)
+        return trainer.run, f"failed: {e}"
+    count = len(leaves)
+
+    def run(state: Any, num_updates: Any) -> tuple[Any, dict[str, jax.Array]]:
+        out = exported.call(jax.tree.leaves(state), jnp.asarray(num_updates, jnp.int32))
+        metrics = dict(zip(metric_keys, out[count:], strict=True))
+        return jax.tree.unflatten(treedef, out[:count]), metrics
+
+    # An exported call's results are committed to the device, so the state is declared
+    # on it in and out: one compile for init's state and for run's own (see `traced`).
+    donate = () if jax.default_backend() == "cpu" else (0,)  # as make_train's run
+    on = device_sharding()
+    return jax.jit(run, in_shardings=(on, None), out_shardings=on, donate_argnums=donate), status
+
+
+def device_sharding() -> jax.sharding.Sharding:
+    return jax.sharding.SingleDeviceSharding(jax.devices()[0])

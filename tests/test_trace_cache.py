@@ -1,0 +1,98 @@
+"""The exported training program (mara_mjx.ppo.trace_cache): a warm start loads it instead of
+tracing, runs the same bits as the plain jitted `trainer.run`, compiles once for init's
+state and its own, and never trusts a damaged or foreign file."""
+
+import jax
+import numpy as np
+import pytest
+
+import mara_mjx
+from mara_mjx.ppo import PRESETS, make_train, trace_cache
+
+CONFIG = PRESETS["default"].replace(
+    num_envs=4, num_steps=4, num_minibatches=1, update_epochs=1, total_timesteps=64
+)
+
+
+def leaves(tree) -> list[np.ndarray]:
+    def raw(x):
+        if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+            return np.asarray(jax.random.key_data(x))
+        return np.asarray(x)
+
+    return [raw(x) for x in jax.tree.leaves(tree)]
+
+
+@pytest.fixture(scope="module")
+def env():
+    return mara_mjx.make("MARA")
+
+
+def trainer(env, config=CONFIG):
+    return make_train(env, config, updates_per_call=2)
+
+
+def test_warm_start_loads_and_runs_the_plain_programs_bits(env, tmp_path):
+    key = jax.random.key(3)
+    first = trainer(env)
+    shapes = jax.eval_shape(first.init, key)
+    run_cold, status = trace_cache.exported_run(first, shapes, tmp_path)
+    assert status.startswith("exported "), status
+    files = list(tmp_path.glob("*.bin"))
+    assert len(files) == 1 and files[0].stat().st_size > 10_000
+
+    second = trainer(env)  # a new process would build a new trainer: nothing traced
+    run_warm, status = trace_cache.exported_run(second, shapes, tmp_path)
+    assert status == f"loaded {files[0]}"
+
+    init = jax.jit(first.init, out_shardings=trace_cache.device_sharding())
+    plain_state, plain_m = first.run(*first.run(first.init(key), 2)[:1], 1)
+    # the plain init's state (uncommitted), then run's own (committed): one XLA compile
+    start = first.init(key)
+    compiles = []
+    listening = [True]
+
+    def listen(event: str, seconds: float, **_) -> None:
+        if listening[0] and event == "/jax/core/compile/backend_compile_duration":
+            compiles.append(seconds)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        state, m = run_cold(start, 2)
+        state, m = run_cold(state, 1)
+    finally:
+        listening[0] = False
+    assert len(compiles) == 1, compiles
+    warm_state, warm_m = run_warm(run_warm(init(key), 2)[0], 1)
+    runs = leaves((state, m)), leaves((warm_state, warm_m)), leaves((plain_state, plain_m))
+    for a, b, c in zip(*runs, strict=True):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(a, c)
+    assert set(m) == set(plain_m)
+
+
+def test_the_key_follows_config_shapes_and_source(env, monkeypatch):
+    t = trainer(env)
+    shapes = jax.eval_shape(t.init, jax.random.key(0))
+    base = trace_cache.cache_key(t, shapes)
+    assert trace_cache.cache_key(trainer(env), shapes) == base
+    assert trace_cache.cache_key(trainer(env, CONFIG.replace(learning_rate=1e-3)), shapes) != base
+    wider = trainer(env, CONFIG.replace(num_envs=8))
+    assert trace_cache.cache_key(wider, jax.eval_shape(wider.init, jax.random.key(0))) != base
+    monkeypatch.setattr(trace_cache, "source_hash", lambda: "edited")
+    assert trace_cache.cache_key(t, shapes) != base
+
+
+def test_a_damaged_file_is_exported_again_and_the_cache_can_be_off(
+    env, tmp_path, capsys, monkeypatch
+):
+    t = trainer(env)
+    shapes = jax.eval_shape(t.init, jax.random.key(0))
+    path = tmp_path / f"{trace_cache.cache_key(t, shapes)}.bin"
+    path.write_bytes(b"\x10\x00\x00\x00\x00\x00\x00\x00{not json at all}")
+    run, status = trace_cache.exported_run(t, shapes, tmp_path)
+    assert status.startswith("exported ") and f"ignoring {path}" in capsys.readouterr().err
+    assert trace_cache.exported_run(t, shapes, tmp_path)[1].startswith("loaded ")
+    assert trace_cache.exported_run(t, shapes, None) == (t.run, "off: no compilation cache")
+    monkeypatch.setenv(trace_cache.ENV_VAR, "0")
+    assert trace_cache.cache_folder() is None
