@@ -79,6 +79,12 @@ def test_the_key_follows_config_shapes_and_source(env, monkeypatch):
     assert trace_cache.cache_key(trainer(env, CONFIG.replace(learning_rate=1e-3)), shapes) != base
     wider = trainer(env, CONFIG.replace(num_envs=8))
     assert trace_cache.cache_key(wider, jax.eval_shape(wider.init, jax.random.key(0))) != base
+    # a user's own variant: the same config and shapes, another task (reward, collisions)
+    from mara_mjx.envs.mara import TASKS, MaraEnv, default_config
+
+    own = MaraEnv(TASKS["MARACollision"], default_config(TASKS["MARA"]))
+    assert own.config == env.config
+    assert trace_cache.cache_key(trainer(own), shapes) != base
     monkeypatch.setattr(trace_cache, "source_hash", lambda: "edited")
     assert trace_cache.cache_key(t, shapes) != base
 

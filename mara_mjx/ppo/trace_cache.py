@@ -78,7 +78,8 @@ def cache_key(trainer: Any, state: Any) -> str:
             return ""
 
     leaves, treedef = jax.tree.flatten(state)
-    env = getattr(trainer.env, "env", trainer.env)
+    batched = trainer.env
+    env = getattr(batched, "env", batched)
     parts = {
         "format": FORMAT,
         "versions": [jax.__version__, pkg("jaxlib"), pkg("mujoco"), pkg("mujoco-mjx")],
@@ -91,13 +92,39 @@ def cache_key(trainer: Any, state: Any) -> str:
         ],
         "source": source_hash(),
         "ppo": trainer.config.to_dict(),
-        "env": env.config.to_dict() if hasattr(env, "config") else repr(env),
-        "env_type": type(env).__qualname__,
+        "env": env_fingerprint(env),
+        "batched": [getattr(batched, "reset_strategy", None), getattr(batched, "num_envs", None)],
         "updates_per_call": trainer.updates_per_call,
         "state": [str(treedef), [(tuple(x.shape), str(x.dtype)) for x in leaves]],
     }
     text = json.dumps(parts, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+def env_fingerprint(env: Any) -> list:
+    """What the traced env step closes over: its type, task, config, driver settings, the
+    MuJoCo model (its binary form) and the default params (their bytes). A user's own
+    variant (mara_mjx.register) with another task or model gets another key."""
+    import mujoco
+    import numpy as np
+
+    model = ""
+    arm = getattr(env, "arm", None)
+    if arm is not None and hasattr(arm, "mj_model"):
+        buf = np.empty(mujoco.mj_sizeModel(arm.mj_model), np.uint8)
+        mujoco.mj_saveModel(arm.mj_model, None, buf)
+        model = hashlib.sha256(buf.tobytes()).hexdigest()
+    params = hashlib.sha256()
+    for x in jax.tree.leaves(getattr(env, "default_params", None)):
+        params.update(np.asarray(x).tobytes())
+    return [
+        f"{type(env).__module__}.{type(env).__qualname__}",
+        repr(getattr(env, "task", None)),
+        env.config.to_dict() if hasattr(env, "config") else repr(env),
+        [getattr(env, "kinematics", None), getattr(env, "n_substeps", None)],
+        model,
+        params.hexdigest(),
+    ]
 
 
 def _write(path: Path, blob: bytes) -> None:
