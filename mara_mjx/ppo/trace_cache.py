@@ -89,6 +89,8 @@ def cache_key(trainer: Any, state: Any) -> str:
             str(jax.config.jax_default_matmul_precision),
             bool(jax.config.jax_enable_x64),
             str(jax.config.jax_default_prng_impl),
+            bool(jax.config.jax_threefry_partitionable),
+            str(jax.config.jax_numpy_dtype_promotion),
         ],
         "source": source_hash(),
         "ppo": trainer.config.to_dict(),
