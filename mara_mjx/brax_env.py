@@ -44,6 +44,8 @@ try:
     _mjx()  # brax imports mujoco.mjx: first arm's quiet import (no "Failed to import warp")
     from brax.envs.base import Env, State
 except ImportError as e:  # brax is an optional extra
+    if (getattr(e, "name", None) or "brax").split(".")[0] != "brax":
+        raise  # not brax itself (mujoco.mjx, say): its own error
     raise ImportError(
         "mara_mjx.brax_env needs brax: pip install 'mara_mjx[brax]' (or brax==0.14.2)"
     ) from e

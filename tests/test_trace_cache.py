@@ -41,7 +41,10 @@ def test_warm_start_loads_and_runs_the_plain_programs_bits(env, tmp_path):
     files = list(tmp_path.glob("*.bin"))
     assert len(files) == 1 and files[0].stat().st_size > 10_000
 
-    second = trainer(env)  # a new process would build a new trainer: nothing traced
+    # a new process builds a new trainer; the warm path never runs (traces) its `run`
+    second = trainer(env)
+    traced = []
+    second = second._replace(run=lambda *a, run=second.run: traced.append(1) or run(*a))
     run_warm, status = trace_cache.exported_run(second, shapes, tmp_path)
     assert status == f"loaded {files[0]}"
 
@@ -69,6 +72,7 @@ def test_warm_start_loads_and_runs_the_plain_programs_bits(env, tmp_path):
         np.testing.assert_array_equal(a, b)
         np.testing.assert_array_equal(a, c)
     assert set(m) == set(plain_m)
+    assert traced == []
 
 
 def test_the_key_follows_config_shapes_and_source(env, monkeypatch):
@@ -76,6 +80,7 @@ def test_the_key_follows_config_shapes_and_source(env, monkeypatch):
     shapes = jax.eval_shape(t.init, jax.random.key(0))
     base = trace_cache.cache_key(t, shapes)
     assert trace_cache.cache_key(trainer(env), shapes) == base
+    assert trace_cache.cache_key(trainer(env, CONFIG.replace(seed=7)), shapes) == base
     assert trace_cache.cache_key(trainer(env, CONFIG.replace(learning_rate=1e-3)), shapes) != base
     wider = trainer(env, CONFIG.replace(num_envs=8))
     assert trace_cache.cache_key(wider, jax.eval_shape(wider.init, jax.random.key(0))) != base
@@ -99,6 +104,21 @@ def test_a_damaged_file_is_exported_again_and_the_cache_can_be_off(
     run, status = trace_cache.exported_run(t, shapes, tmp_path)
     assert status.startswith("exported ") and f"ignoring {path}" in capsys.readouterr().err
     assert trace_cache.exported_run(t, shapes, tmp_path)[1].startswith("loaded ")
+    # a readable program for other shapes (a wider batch) under this key: not used
+    wider = trainer(env, CONFIG.replace(num_envs=8))
+    other = tmp_path / "other"
+    trace_cache.exported_run(wider, jax.eval_shape(wider.init, jax.random.key(0)), other)
+    (foreign,) = other.glob("*.bin")
+    path.write_bytes(foreign.read_bytes())
+    assert trace_cache.exported_run(t, shapes, tmp_path)[1].startswith("exported ")
+    assert "do not match the training state" in capsys.readouterr().err
+    # a folder that cannot be written: trains with the program all the same
+    blocked = tmp_path / "a_file"
+    blocked.write_text("")
+    run, status = trace_cache.exported_run(t, shapes, blocked / "sub")
+    assert status.startswith("exported (not saved") and run is not t.run
     assert trace_cache.exported_run(t, shapes, None) == (t.run, "off: no compilation cache")
+    assert trace_cache.cache_folder(True, str(tmp_path)) == tmp_path / trace_cache.FOLDER
+    assert trace_cache.cache_folder(False, str(tmp_path)) is None
     monkeypatch.setenv(trace_cache.ENV_VAR, "0")
-    assert trace_cache.cache_folder() is None
+    assert trace_cache.cache_folder(True, str(tmp_path)) is None

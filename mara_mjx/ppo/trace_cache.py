@@ -14,12 +14,17 @@ Where that cache is on, the train CLI also keeps `trainer.run` as a serialized
 
 Both paths run the same exported program, so a warm run repeats its cold run bit for
 bit, as with the compilation cache alone (tests/test_trace_cache.py also checks it equals
-plain `trainer.run` on the CPU). The key is a hash of everything the traced program
-depends on: the resolved PPO and env configs, the state's shapes and dtypes, the updates
-per call, the jax / jaxlib / mujoco versions, the backend and device kind, JAX's numeric
-settings, and the source of the installed mara_mjx package (an edited mara_mjx never
-loads a stale program). Only for one device (as ppo.warmup) and one seed; anything that
-fails falls back to plain `trainer.run` with one line on stderr.
+plain `trainer.run` on the CPU). The key is a hash of what the traced program depends on:
+the resolved PPO config (its seed aside: the seed enters through the state), the env's
+type, task, config, driver settings, MuJoCo model and default params, the batched env,
+the state's shapes and dtypes, the updates per call, the versions of jax, jaxlib,
+mujoco, flax, optax and numpy, the backend and device kind, JAX's numeric settings, and
+the source of the installed mara_mjx package (an edited mara_mjx never loads a stale
+program). Something else that changes the program without changing any of these (a
+patched dependency, say) needs the folder deleted or MARA_MJX_TRACE_CACHE=0. A loaded
+file is checked against the state's shapes and dtypes. Only for one device (as
+ppo.warmup) and one seed; anything that fails falls back to plain `trainer.run` with one
+line on stderr, and a file that cannot be written costs only the next warm start.
 """
 
 from __future__ import annotations
@@ -57,15 +62,15 @@ def source_hash() -> str:
 ENV_VAR = "MARA_MJX_TRACE_CACHE"
 
 
-def cache_folder() -> Path | None:
-    """`<JAX's compilation-cache folder>/mara_mjx_export` when that cache is on, else None
-    (also when the environment variable MARA_MJX_TRACE_CACHE is 0 / false / off)."""
+def cache_folder(enabled: bool | None = None, folder: str | None = None) -> Path | None:
+    """`<JAX's compilation-cache folder>/mara_mjx_export` when that cache is on (None:
+    JAX's settings), else None; also None when the environment variable
+    MARA_MJX_TRACE_CACHE is 0 / false / no / off."""
     if os.environ.get(ENV_VAR, "").strip().lower() in ("0", "false", "no", "off"):
         return None
-    if not jax.config.jax_enable_compilation_cache:
-        return None
-    folder = jax.config.jax_compilation_cache_dir
-    return Path(folder) / FOLDER if folder else None
+    enabled = jax.config.jax_enable_compilation_cache if enabled is None else enabled
+    folder = jax.config.jax_compilation_cache_dir if folder is None else folder
+    return Path(folder) / FOLDER if enabled and folder else None
 
 
 def cache_key(trainer: Any, state: Any) -> str:
@@ -82,7 +87,8 @@ def cache_key(trainer: Any, state: Any) -> str:
     env = getattr(batched, "env", batched)
     parts = {
         "format": FORMAT,
-        "versions": [jax.__version__, pkg("jaxlib"), pkg("mujoco"), pkg("mujoco-mjx")],
+        "versions": [jax.__version__]
+        + [pkg(n) for n in ("jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "numpy")],
         "backend": jax.default_backend(),
         "device": jax.devices()[0].device_kind,
         "jax_config": [
@@ -91,9 +97,10 @@ def cache_key(trainer: Any, state: Any) -> str:
             str(jax.config.jax_default_prng_impl),
             bool(jax.config.jax_threefry_partitionable),
             str(jax.config.jax_numpy_dtype_promotion),
+            int(getattr(jax.config, "jax_random_seed_offset", 0)),
         ],
         "source": source_hash(),
-        "ppo": trainer.config.to_dict(),
+        "ppo": {k: v for k, v in trainer.config.to_dict().items() if k != "seed"},
         "env": env_fingerprint(env),
         "batched": [getattr(batched, "reset_strategy", None), getattr(batched, "num_envs", None)],
         "updates_per_call": trainer.updates_per_call,
@@ -135,6 +142,9 @@ def _write(path: Path, blob: bytes) -> None:
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(blob)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # as an ordinary file (mkstemp's are 0600)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -169,6 +179,7 @@ def exported_run(trainer: Any, state: Any, folder: Path | None) -> tuple[Callabl
         status = f"loaded {path}"
         try:
             exported, metric_keys = _unpack(path.read_bytes())
+            _check(exported, leaves, len(metric_keys))
         except FileNotFoundError:
             exported, metric_keys = None, []
         except Exception as e:  # a damaged or foreign file: export again, replace it
@@ -187,8 +198,12 @@ def exported_run(trainer: Any, state: Any, folder: Path | None) -> tuple[Callabl
             n = jax.ShapeDtypeStruct((), jnp.int32)
             shapes = [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves]
             exported = jax.export.export(jax.jit(flat_run))(shapes, n)
-            _write(path, _pack(exported, metric_keys))
             status = f"exported {path}"
+            try:
+                _write(path, _pack(exported, metric_keys))
+            except OSError as e:  # train with the program all the same
+                print(f"mara_mjx: cannot write {path}: {e}", file=sys.stderr)
+                status = f"exported (not saved: {e})"
     except Exception as e:  # never stop training over a cache
         print(f"mara_mjx: training program not cached ({e})", file=sys.stderr)
         return trainer.run, f"failed: {e}"
@@ -204,6 +219,17 @@ def exported_run(trainer: Any, state: Any, folder: Path | None) -> tuple[Callabl
     donate = () if jax.default_backend() == "cpu" else (0,)  # as make_train's run
     on = device_sharding()
     return jax.jit(run, in_shardings=(on, None), out_shardings=on, donate_argnums=donate), status
+
+
+def _check(exported: Any, leaves: list, n_metrics: int) -> None:
+    """ValueError unless `exported` takes these state leaves and the step count, and
+    returns as many state leaves plus `n_metrics` metrics."""
+    want = [(tuple(x.shape), x.dtype) for x in leaves] + [((), jnp.dtype(jnp.int32))]
+    got = [(tuple(a.shape), a.dtype) for a in exported.in_avals]
+    if got != want:
+        raise ValueError("its inputs do not match the training state's shapes and dtypes")
+    if len(exported.out_avals) != len(leaves) + n_metrics:
+        raise ValueError("its outputs do not match the training state and metrics")
 
 
 def device_sharding() -> jax.sharding.Sharding:

@@ -85,8 +85,8 @@ def start(
         return None
 
     def compile_all(done: Callable[[str], None]) -> None:
-        # On one device init's outputs are uncommitted arrays: shapes without a sharding
-        # give the same cache key (a sharding here would not: a second compile)
+        # init's own shapes, with the sharding its outputs have (none: uncommitted; the
+        # device: `traced`'s init), so the cache key is the later call's
         state = jax.eval_shape(trainer.init, key)
         n = jax.ShapeDtypeStruct((), jax.numpy.int32, weak_type=True)  # a Python int
         trainer.run.lower(state, n).compile()
@@ -105,10 +105,10 @@ def traced(trainer: Any, state: Any, seed: int) -> Any:
     from mara_mjx.ppo import trace_cache
 
     folder = trace_cache.cache_folder()
-    if folder is None:
-        return trainer
-    # init's state on the device as the exported run's (committed): the background
-    # compiles below then lower for the arrays training passes (no second compile)
+    if folder is None or trainer.env.mesh is not None or jax.device_count() != 1:
+        return trainer  # (several devices: as `start`)
+    # init's state on the device as the exported run's (committed): `start`'s background
+    # compiles then lower for the arrays training passes (no second compile)
     init = jax.jit(trainer.init, out_shardings=trace_cache.device_sharding())
     shapes = jax.eval_shape(init, jax.random.key(seed)) if state is None else state
     run, status = trace_cache.exported_run(trainer, shapes, folder)
