@@ -24,7 +24,6 @@ seed: first call done + env steps to 1 mm / env steps/s. Results: <out>/ppo_shap
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import os
@@ -36,6 +35,10 @@ import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+
+import numpy as np
+
+from mara_mjx.ppo import logger
 
 QUIET = ["--plots", "false", "--tensorboard", "false", "--progress", "false"]
 
@@ -50,16 +53,16 @@ def run(cmd: list[str], log: Path, timeout: float) -> tuple[int, float]:
     return rc, time.monotonic() - start
 
 
-def progress_rate(path: Path) -> tuple[float | None, float | None]:
-    """(median steps_per_s after the first row, time_s of the first row)."""
-    if not path.is_file():
+def progress_rate(run_dir: Path) -> tuple[float | None, float | None]:
+    """(median steps_per_s of the rows after the first jitted call, as the tta study
+    reads it; the first call's time_s)."""
+    try:
+        progress = logger.read_progress(run_dir, ("time_s", "steps_per_s"))
+    except logger.ProgressError:
         return None, None
-    with path.open() as f:
-        rows = list(csv.DictReader(f))
-    if not rows:
-        return None, None
-    rates = [float(r["steps_per_s"]) for r in rows[1:] if r.get("steps_per_s")]
-    return (statistics.median(rates) if rates else None), float(rows[0]["time_s"])
+    t, sps = progress["time_s"], progress["steps_per_s"]
+    later = sps[(t > t[0]) & np.isfinite(sps)]
+    return (float(np.median(later)) if later.size else None), float(t[0])
 
 
 def learning(task: str, name: str, flags: str, seeds: int, work: Path, timeout: float) -> dict:
@@ -84,7 +87,7 @@ def speed(task: str, name: str, flags: str, work: Path, timeout: float) -> dict:
            "--probe_reach_steps", "100", "--evaluate", "false", *QUIET, "--out", str(out),
            "--compilation_cache", cache, *shlex.split(flags)]  # fmt: skip
     rc, wall = run(cmd, work / f"{name}_speed.log", timeout)
-    rate, first = progress_rate(out / "progress.csv")
+    rate, first = progress_rate(out)
     row = {"command": shlex.join(cmd[1:]), "rc": rc, "wall_s": round(wall, 1),
            "steps_per_s": rate, "first_call_done_s": first}  # fmt: skip
     path = out / "summary.json"

@@ -195,17 +195,22 @@ def check_writable(folder: str | os.PathLike) -> Path:
 
 def provenance() -> dict[str, Any]:
     """Versions of the software that matters for reproducing a run, and the git commit."""
+    return {"versions": versions(), "git_commit": git_commit()}
+
+
+def versions() -> dict[str, Any]:
+    """Python's and the packages' versions, JAX's backend and the devices' kinds."""
     import jax
 
-    versions = {"python": platform.python_version()}
+    out: dict[str, Any] = {"python": platform.python_version()}
     for package in ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "numpy", "mara_mjx"):
         try:
-            versions[package] = metadata.version(package)
+            out[package] = metadata.version(package)
         except metadata.PackageNotFoundError:
-            versions[package] = None
-    versions["jax_backend"] = jax.default_backend()
-    versions["devices"] = [str(d.device_kind) for d in jax.devices()]
-    return {"versions": versions, "git_commit": git_commit()}
+            out[package] = None
+    out["jax_backend"] = jax.default_backend()
+    out["devices"] = [str(d.device_kind) for d in jax.devices()]
+    return out
 
 
 def git_commit() -> str | None:

@@ -17,8 +17,8 @@ bit, as with the compilation cache alone (tests/test_trace_cache.py also checks 
 plain `trainer.run` on the CPU). The key is a hash of what the traced program depends on:
 the resolved PPO config (its seed aside: the seed enters through the state), the env's
 type, task, config, driver settings, MuJoCo model and default params, the batched env,
-the state's shapes and dtypes, the updates per call, the versions of jax, jaxlib,
-mujoco, flax, optax and numpy, the backend and device kind, JAX's numeric settings, and
+the state's shapes and dtypes, the updates per call, the versions of python, jax,
+jaxlib, mujoco, flax, optax and numpy, the backend and device kind, JAX's numeric settings, and
 the source of the installed mara_mjx package (an edited mara_mjx never loads a stale
 program). Something else that changes the program without changing any of these (a
 patched dependency, say) needs the folder deleted or MARA_MJX_TRACE_CACHE=0. A loaded
@@ -74,23 +74,14 @@ def cache_folder(enabled: bool | None = None, folder: str | None = None) -> Path
 
 
 def cache_key(trainer: Any, state: Any) -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    def pkg(name: str) -> str:
-        try:
-            return version(name)
-        except PackageNotFoundError:
-            return ""
+    from mara_mjx import runs  # here, not at the top: runs imports ppo.checkpoint
 
     leaves, treedef = jax.tree.flatten(state)
     batched = trainer.env
     env = getattr(batched, "env", batched)
     parts = {
         "format": FORMAT,
-        "versions": [jax.__version__]
-        + [pkg(n) for n in ("jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "numpy")],
-        "backend": jax.default_backend(),
-        "device": jax.devices()[0].device_kind,
+        "versions": runs.versions(),  # packages, backend, devices: as every run records
         "jax_config": [
             str(jax.config.jax_default_matmul_precision),
             bool(jax.config.jax_enable_x64),
