@@ -153,6 +153,9 @@ def main() -> None:
     p.add_argument("--work", type=Path, default=Path("/tmp/ppo_shape"))
     p.add_argument("--out", type=Path, required=True)
     args = p.parse_args()
+    bad = [v for v in args.variant if ":" not in v or not v.split(":", 1)[0]]
+    if bad:
+        p.error(f"--variant takes NAME:FLAGS (FLAGS may be empty, e.g. 'base:'), got {bad}")
     variants = dict(v.split(":", 1) for v in args.variant)
     args.work.mkdir(parents=True, exist_ok=True)
     args.out.mkdir(parents=True, exist_ok=True)
