@@ -367,6 +367,23 @@ def test_bad_input_gives_clear_error(args, message, capsys, compiled):
     assert not compiled
 
 
+def test_studies_sharing_an_output_folder_all_start(tmp_path):
+    """Several studies check one --out folder at once (as `runs` above starts them): each
+    writability check uses a file of its own, so none removes another's (CI saw that)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from mara_mjx.bench import runner
+
+    def check(_):
+        parser = runner.build_parser("")
+        for _ in range(50):
+            runner.resolve(parser, ["env", "--quick", "--out", str(tmp_path)])
+
+    with ThreadPoolExecutor(8) as pool:
+        list(pool.map(check, range(8)))  # re-raises a SystemExit from any thread
+    assert not any(tmp_path.glob(".write_test*"))
+
+
 def test_every_study_parses_without_brax(monkeypatch):
     """brax is optional: the benchmark CLI's parser (which builds every study's default
     config) must not need it, so that `python -m mara_mjx.benchmark tta` runs without it."""

@@ -15,8 +15,10 @@ import argparse
 import dataclasses
 import importlib
 import json
+import os
 import platform
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -296,9 +298,10 @@ def resolve(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> Benc
     out = Path(config.out)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        probe = out / ".write_test"
-        probe.write_text("")
-        probe.unlink()
+        # A file of its own: several studies may check one folder at once.
+        fd, probe = tempfile.mkstemp(prefix=".write_test", dir=out)
+        os.close(fd)
+        os.unlink(probe)
     except OSError as e:
         parser.error(f"output folder {out} is not writable: {e}")
     if config.quick and not recorded_quick(out / f"{args.study}.json"):
