@@ -57,6 +57,7 @@ from typing import Any
 
 import numpy as np
 
+from mara_mjx import files
 from mara_mjx.npzmeta import META_KEY, NPZ_ERRORS, read_npz_with_meta
 
 FORMAT = "mara_mjx.export/1"
@@ -205,18 +206,11 @@ def export_policy(
 
 
 def _write_atomic(path: Path, write: Any) -> None:
-    """write(binary file) into a temporary file, then renamed to `path`."""
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    """write(binary file) to `path` atomically (mara_mjx.files); ExportError if it cannot."""
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with open(tmp, "wb") as f:
-            write(f)
-        os.replace(tmp, path)
+        files.write_atomic(path, write)
     except OSError as e:
         raise ExportError(f"cannot write {str(path)!r}: {e}") from e
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -24,6 +24,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from mara_mjx import files
+from mara_mjx.files import check_writable  # noqa: F401 (runs.check_writable: its callers)
 from mara_mjx.npzmeta import NPZ_ERRORS, read_npz_with_meta
 from mara_mjx.ppo.checkpoint import (
     CHECKPOINT_DIR,
@@ -134,12 +136,8 @@ def make_env(meta: dict[str, Any], **overrides: Any):
 
 
 def write_json(path: str | os.PathLike, data: Any) -> Path:
-    """Write `data` as indented JSON, atomically (temporary file + os.replace)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(json.dumps(data, indent=2) + "\n")
-    os.replace(tmp, path)
-    return path
+    """Write `data` as indented JSON, atomically (mara_mjx.files)."""
+    return files.write_atomic(path, json.dumps(data, indent=2) + "\n")
 
 
 def prepare_run_folder(out: Path, checkpoint: Path | None, source_run: Path | None) -> None:
@@ -181,16 +179,6 @@ def interrupted_message(out: Path) -> str:
         f"interrupted before the first checkpoint; {out} holds none, so the same command "
         "(same --out) starts the run over"
     )
-
-
-def check_writable(folder: str | os.PathLike) -> Path:
-    """Create `folder` if needed and check a file can be written there; OSError if not."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    probe = folder / f".write-test-{os.getpid()}"
-    probe.write_bytes(b"")
-    probe.unlink()
-    return folder
 
 
 def provenance() -> dict[str, Any]:

@@ -15,10 +15,8 @@ import argparse
 import dataclasses
 import importlib
 import json
-import os
 import platform
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -27,6 +25,7 @@ from typing import Any, ClassVar, NamedTuple
 import jax
 import numpy as np
 
+from mara_mjx import files
 from mara_mjx.cli import configure_jax
 from mara_mjx.config import ConfigMixin, check_int
 from mara_mjx.plots import finish_figure
@@ -297,11 +296,7 @@ def resolve(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> Benc
         parser.error(f"{args.study}: {e}")
     out = Path(config.out)
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        # A file of its own: several studies may check one folder at once.
-        fd, probe = tempfile.mkstemp(prefix=".write_test", dir=out)
-        os.close(fd)
-        os.unlink(probe)
+        files.check_writable(out)  # several studies may check one folder at once
     except OSError as e:
         parser.error(f"output folder {out} is not writable: {e}")
     if config.quick and not recorded_quick(out / f"{args.study}.json"):

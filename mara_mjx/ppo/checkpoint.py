@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mara_mjx import files
 from mara_mjx.npzmeta import META_KEY, NPZ_ERRORS, read_npz_with_meta
 
 FORMAT = "mara_mjx.ppo.checkpoint/1"
@@ -116,17 +117,7 @@ def save_checkpoint(path: str | os.PathLike, state: Any, meta: dict[str, Any]) -
     arrays = state_to_arrays(state)
     meta = {"format": FORMAT, **meta}
     arrays[META_KEY] = np.array(json.dumps(meta))
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with open(tmp, "wb") as f:
-            np.savez(f, **arrays)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
+    return files.write_atomic(path, lambda f: np.savez(f, **arrays), durable=True)
 
 
 def load_checkpoint(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:

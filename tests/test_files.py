@@ -1,0 +1,80 @@
+"""mara_mjx.files: the one atomic writer (checkpoints, exports, JSON records, the trace
+cache) and the writability check, under interrupts, errors and concurrent writers."""
+
+from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+
+from mara_mjx import files
+
+
+def _leftovers(folder) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if p.name.endswith(".tmp"))
+
+
+def test_writes_bytes_text_and_a_writer_function(tmp_path):
+    target = tmp_path / "new" / "folder" / "a.bin"  # folders are created
+    assert files.write_atomic(target, b"\x00\x01") == target
+    assert target.read_bytes() == b"\x00\x01"
+    files.write_atomic(target, "héllo\n")  # a str is UTF-8
+    assert target.read_text(encoding="utf-8") == "héllo\n"
+    arrays = {"x": np.arange(3)}
+    files.write_atomic(target, lambda f: np.savez(f, **arrays), durable=True)
+    assert np.array_equal(np.load(target)["x"], arrays["x"])
+    assert _leftovers(target.parent) == []
+
+
+@pytest.mark.parametrize("error", [KeyboardInterrupt, OSError])
+def test_an_interrupted_write_leaves_the_old_file_and_no_temporary(tmp_path, error):
+    target = tmp_path / "checkpoint.npz"
+    target.write_bytes(b"old, complete")
+
+    def half_then_stop(f):
+        f.write(b"half of the new")
+        raise error("stopped mid-write")
+
+    with pytest.raises(error):
+        files.write_atomic(target, half_then_stop)
+    assert target.read_bytes() == b"old, complete"
+    assert _leftovers(tmp_path) == []
+
+
+def test_files_get_ordinary_permissions(tmp_path):
+    old = os.umask(0o022)
+    try:
+        path = files.write_atomic(tmp_path / "x.json", "{}")
+    finally:
+        os.umask(old)
+    assert path.stat().st_mode & 0o777 == 0o644
+
+
+def test_concurrent_writers_of_one_file_each_finish_and_one_wins_whole(tmp_path):
+    """Threads of one process (the old pid-named temporary file was shared by them: one
+    thread's rename took another's file away) and the writability check beside them."""
+    target = tmp_path / "record.json"
+    payloads = [(f"writer {i} " * 2000).encode() for i in range(8)]
+    barrier = threading.Barrier(8)
+
+    def write(i):
+        barrier.wait()
+        for _ in range(30):
+            files.write_atomic(target, payloads[i])
+            files.check_writable(tmp_path)
+
+    with ThreadPoolExecutor(8) as pool:
+        list(pool.map(write, range(8)))  # re-raises any thread's error
+    assert target.read_bytes() in payloads
+    assert [p.name for p in tmp_path.iterdir()] == ["record.json"]
+
+
+def test_check_writable_creates_the_folder_and_names_the_problem(tmp_path):
+    assert files.check_writable(tmp_path / "a" / "b").is_dir()
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(OSError):
+        files.check_writable(blocker / "sub")  # a file where a folder should be
