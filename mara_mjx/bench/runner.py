@@ -147,7 +147,7 @@ def write_results(
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / f"{study}.{ext}" for ext in ("json", "md", "png")]
     data = _json_safe({**meta, "records": records})
-    paths[0].write_text(json.dumps(data, indent=2, allow_nan=False))
+    files.write_atomic(paths[0], json.dumps(data, indent=2, allow_nan=False))
     headers = [h for h, _ in spec["columns"]]
     lines = [
         f"# {spec['title']}",
@@ -164,7 +164,7 @@ def write_results(
         lines.append("| " + " | ".join(f(r) for _, f in spec["columns"]) + " |")
     if "notes" in spec:
         lines += ["", *spec["notes"](records)]
-    paths[1].write_text("\n".join(lines) + "\n")
+    files.write_atomic(paths[1], "\n".join(lines) + "\n")
     title = f"{study}: {meta['device']['device_kind']}"
     if "plot" in spec:
         spec["plot"](records, title, paths[2])
