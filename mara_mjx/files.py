@@ -21,12 +21,14 @@ from pathlib import Path
 from typing import BinaryIO
 
 
-def _temporary(path: Path) -> tuple[int, Path]:
-    """A new file beside `path` that no other call uses (its descriptor, its path)."""
+def _temporary(path: Path) -> Path:
+    """A new, empty file beside `path` that no other call uses (the name's first 200
+    characters, so that a name the file system allows still allows its temporary)."""
     while True:
-        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
+        tmp = path.with_name(f".{path.name[:200]}.{secrets.token_hex(4)}.tmp")
         try:
-            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), tmp
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            return tmp
         except FileExistsError:
             continue
 
@@ -35,15 +37,16 @@ def write_atomic(
     path: str | os.PathLike, data: bytes | str | Callable[[BinaryIO], None], durable: bool = False
 ) -> Path:
     """Replace `path` with `data` (bytes, a str written as UTF-8, or a function that
-    writes into the binary file it is given), creating its folder if needed. `durable`:
-    flush to disk before the rename (a checkpoint survives a power cut). On any error or
-    interrupt the temporary file is removed, `path` is as it was, and the exception
-    (OSError for the file system's) propagates."""
+    writes into the binary file it is given), creating its folder if needed. The target
+    is replaced, not written through: a symbolic link there becomes a file. `durable`:
+    the file and then its folder's entry are flushed to disk (a checkpoint survives a
+    power cut). On any error or interrupt the temporary file is removed, `path` is as it
+    was, and the exception (OSError for the file system's) propagates."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = _temporary(path)
+    tmp = None
     try:
-        os.close(fd)
+        tmp = _temporary(path)
         with open(tmp, "wb") as f:  # by name: writers such as onnx.save read f.name
             if callable(data):
                 data(f)
@@ -53,9 +56,16 @@ def write_atomic(
                 f.flush()
                 os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+        tmp = None
+        if durable:
+            folder = os.open(path.parent, os.O_RDONLY)
+            try:
+                os.fsync(folder)
+            finally:
+                os.close(folder)
+    finally:
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
     return path
 
 
@@ -64,7 +74,10 @@ def check_writable(folder: str | os.PathLike) -> Path:
     Safe when several threads or processes check one folder at once."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    fd, probe = _temporary(folder / "write-test")
-    os.close(fd)
-    probe.unlink()
+    probe = None
+    try:
+        probe = _temporary(folder / "write-test")
+    finally:
+        if probe is not None:
+            probe.unlink(missing_ok=True)
     return folder

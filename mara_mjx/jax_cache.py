@@ -33,8 +33,9 @@ from __future__ import annotations
 
 import os
 import sys
-import threading
 from pathlib import Path
+
+from mara_mjx import files
 
 ENV_VAR = "MARA_MJX_COMPILATION_CACHE"
 MIN_COMPILE_TIME_S = 0.2
@@ -113,12 +114,7 @@ def atomic_writes() -> bool:
         final = path / f"{key}{suffix}"
         if final.exists():
             return
-        tmp = path / f".{key}.{os.getpid()}.{threading.get_ident()}.tmp"
-        try:
-            tmp.write_bytes(value)
-            os.replace(tmp, final)
-        finally:
-            tmp.unlink(missing_ok=True)
+        files.write_atomic(final, value)
 
     put._mara_mjx_atomic = True  # type: ignore[attr-defined]
     cls.put = put

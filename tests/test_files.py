@@ -78,3 +78,11 @@ def test_check_writable_creates_the_folder_and_names_the_problem(tmp_path):
     blocker.write_text("")
     with pytest.raises(OSError):
         files.check_writable(blocker / "sub")  # a file where a folder should be
+
+
+def test_a_name_the_file_system_allows_can_be_written(tmp_path):
+    """The temporary file's name keeps the target's first 200 characters, so a target
+    name of 255 characters (NAME_MAX on Linux) still works."""
+    target = tmp_path / ("n" * 255)
+    files.write_atomic(target, b"x")
+    assert target.read_bytes() == b"x" and _leftovers(tmp_path) == []
