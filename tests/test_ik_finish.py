@@ -10,6 +10,7 @@ within 5 mm. Each jitted function is compiled once.
 from __future__ import annotations
 
 import functools
+import re
 
 import jax
 import jax.numpy as jnp
@@ -280,3 +281,52 @@ def test_one_update_with_the_stored_ik_step_matches_computing_it_in_every_pass(m
     init = make_train(env, config, updates_per_call=1, devices=1).init(jax.random.key(0))
     start = jax.tree.leaves(jax.device_get(init.params))
     assert max(float(np.abs(a - b).max()) for a, b in zip(stored, start, strict=True)) > 1e-4
+
+
+def batched_lapack_calls(stablehlo: str) -> list[str]:
+    """The LAPACK custom calls of a lowered program whose first operand has a batch
+    dimension (rank > 2): the ones jaxlib splits over XLA's CPU thread pool."""
+    found = []
+    for line in stablehlo.splitlines():
+        if "custom_call" in line and "lapack_" in line:
+            operand = re.search(r":\s*\(tensor<([^>]*)>", line)
+            if operand and operand.group(1).count("x") > 2:
+                found.append(line.strip()[:160])
+    return found
+
+
+def test_cpu_training_programs_hold_no_batched_lapack_call_and_the_ik_solve_is_exact():
+    """jaxlib's batched LAPACK LU on a CPU blocks XLA's intra-op pool threads while its
+    parts run on the same pool: two at once on a 2-core machine and the program never
+    finishes (the train CLI's Orient default hung at its first update; NOTES section 30).
+    On a CPU the IK step's solve is written out (envs/linalg.py) and --seeds initialises
+    the seeds one after another (the orthogonal init's QR, vmapped, is a batched LAPACK
+    call too): the Orient default's --seeds programs hold no LAPACK call, and the solve
+    matches float64's."""
+    from mara_mjx.envs.task_space import dls_step
+    from mara_mjx.ppo import make_train
+    from mara_mjx.ppo.train import make_seed_trainer
+
+    assert jax.default_backend() == "cpu"
+    env = mara_mjx.make("MARACollisionOrient")
+    config = PRESETS[default_preset("MARACollisionOrient")].replace(
+        num_envs=8, num_steps=4, num_minibatches=2, update_epochs=1, total_timesteps=8 * 4
+    )
+    assert config.ik_prior  # the IK step is in this program
+    trainer = make_train(env, config, updates_per_call=1, devices=1)
+    seeds = make_seed_trainer(trainer, (0, 1), devices=1)  # vmapped: a batched QR at init
+    state = jax.eval_shape(seeds.init)
+    texts = [seeds.init.trace().lower().as_text(), seeds.run.trace(state, 1).lower().as_text()]
+    assert [batched_lapack_calls(text) for text in texts] == [[], []]
+    batched = jax.jit(jax.vmap(jnp.linalg.solve)).lower(jnp.ones((4, 6, 6)), jnp.ones((4, 6)))
+    assert batched_lapack_calls(batched.as_text())  # the check finds one
+
+    rng = np.random.default_rng(0)
+    chain = nominal_chain()
+    for _ in range(20):
+        q = rng.uniform(-2.0, 2.0, 6)
+        full = np.asarray(chain.jacobian(jnp.asarray(q, jnp.float32)), np.float64)
+        for jac, dx in ((full, rng.normal(size=6) * 0.05), (full[:3], rng.normal(size=3) * 0.05)):
+            got = np.asarray(dls_step(jnp.asarray(jac, jnp.float32), jnp.asarray(dx, jnp.float32)))
+            want = jac.T @ np.linalg.solve(jac @ jac.T + 0.02**2 * np.eye(len(dx)), dx)
+            assert np.abs(got - want).max() <= 2e-3 * np.abs(want).max() + 1e-7

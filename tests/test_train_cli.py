@@ -303,22 +303,20 @@ def test_evaluate_cli_on_the_real_driver(real_driver_eval):
 
 # ------------------------------------------------------------------ several seeds
 # TINY (seed 0) with --seeds 2: seeds 0 and 1 vmapped in one program; seed 0 must match
-# a single run. On MARA's `default` preset: with the CLI's own (ik_finish: the saved
-# policy's IK finish in the trainer's probe branch) the seeds-vmapped program deadlocked
-# XLA:CPU (idle in its first device_get) in about 1 run in 3 at O0 and once in a suite
-# run without the O0 flags; 8 of 8 runs without the finish completed (NOTES section 28;
-# the same hang as the IK programs' before). These tests are about the seeds machinery.
+# a single run, on MARA's `default` preset (these tests are about the seeds machinery).
+# These programs used to deadlock XLA:CPU now and then (NOTES sections 15 and 28): batched
+# LAPACK calls (the IK step's LU, the vmapped orthogonal init's QR) blocking every thread
+# of XLA's CPU pool; since NOTES section 30 a CPU program makes none
+# (test_ik_finish.py::test_cpu_training_programs_hold_no_batched_lapack_call...).
 SEEDS = [*TINY, "--seeds", "2", "--tensorboard", "false", "--preset", "default"]
 
 
 @pytest.fixture(scope="session")
 def users_env(cli_env) -> dict[str, str]:
     """cli_env without the suite's LLVM O0 flags: programs compiled as users compile them.
-    The --seeds tests run in it: at O0 the seeds-vmapped training program deadlocked (idle
-    in its first device_get) in 2 of about 8 runs on this 2-core VM under load, never in 5
-    runs without the flags (benchmarks/NOTES.md section 15; not understood); with the IK
-    finish it also hung once without them (section 28 part 8: SEEDS below). Every process
-    whose results these tests compare runs in it, so the comparisons stay like for like."""
+    The --seeds tests run in it (their deadlocks, NOTES sections 15 and 28, were batched
+    LAPACK calls: see SEEDS). Every process whose results these tests compare runs in it,
+    so the comparisons stay like for like."""
     return {**cli_env, "XLA_FLAGS": cli_env["XLA_FLAGS"].replace(FAST_COMPILE_FLAGS, "")}
 
 
@@ -441,12 +439,11 @@ def test_bad_seeds_fail_fast_with_a_clear_message(trained, tmp_path, capsys, com
 
 
 def test_population_run_trains_checkpoints_and_evaluates(users_env, tmp_path):
-    """`--population 2` through the CLIs: member 0's policy in the checkpoints, which
-    `evaluate` reads like any run's (MARA: the vmapped Orient programs hung on XLA:CPU,
-    benchmarks/NOTES.md section 18)."""
+    """`--population 2` through the CLIs, with the CLI's own preset for MARA (ik_finish:
+    the IK step in the vmapped program, which deadlocked XLA:CPU before NOTES section
+    30): member 0's policy in the checkpoints, which `evaluate` reads like any run's."""
     out = tmp_path / "run"
     args = [*TINY, "--population", "2", "--tensorboard", "false", "--out", str(out)]
-    args += ["--preset", "default"]  # vmapped members: see SEEDS on the IK finish on CPU
     proc = run_module(users_env, "mara_mjx.train", *args)
     assert proc.returncode == 0, proc.stderr[-4000:]
     config = json.loads((out / "config.json").read_text())

@@ -55,6 +55,7 @@ import numpy as np
 
 from mara_mjx.envs.chain import Chain
 from mara_mjx.envs.geometry import quat_to_mat_np
+from mara_mjx.envs.linalg import spd_solve
 
 # Newton iterations of the constraint solve, a fixed count (no while loop). Newton's method
 # with exact line searches on a piecewise quadratic ends once the rows' zones are right.
@@ -136,11 +137,11 @@ class Dynamics:
         with jax.named_scope("chain_smooth"):
             mass, qfrc_smooth, kv = self._smooth(model, q, qvel, ctrl)
         with jax.named_scope("chain_constraint"):
-            qacc_smooth = _spd_solve(mass, qfrc_smooth)
+            qacc_smooth = spd_solve(mass, qfrc_smooth)
             qfrc_constraint = self._constraint(model, q, qvel, mass, qacc_smooth)
         with jax.named_scope("chain_integrate"):
             # implicitfast: the servos' and dampers' velocity derivative, implicit
-            qacc = _spd_solve(mass + dt * jnp.diag(kv), qfrc_smooth + qfrc_constraint)
+            qacc = spd_solve(mass + dt * jnp.diag(kv), qfrc_smooth + qfrc_constraint)
             qvel = qvel + dt * qacc
             return q + dt * qvel, qvel
 
@@ -248,26 +249,6 @@ def _kbi(solref, solimp, pos, timestep):
     return k, b, imp
 
 
-def _spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
-    """a^-1 b for a symmetric positive definite (n, n) a and (n,) b: Cholesky written out
-    element by element, so that XLA fuses it with the rest of the step (a library
-    factorisation is a separate call per matrix; these are 6 x 6)."""
-    n = a.shape[-1]
-    low = [[None] * n for _ in range(n)]
-    for j in range(n):
-        diag = jnp.sqrt(a[j, j] - sum(low[j][k] * low[j][k] for k in range(j)))
-        low[j][j] = diag
-        for i in range(j + 1, n):
-            low[i][j] = (a[i, j] - sum(low[i][k] * low[j][k] for k in range(j))) / diag
-    y = []
-    for i in range(n):
-        y.append((b[i] - sum(low[i][k] * y[k] for k in range(i))) / low[i][i])
-    x = [None] * n
-    for i in reversed(range(n)):
-        x[i] = (y[i] - sum(low[k][i] * x[k] for k in range(i + 1, n))) / low[i][i]
-    return jnp.stack(x)
-
-
 def _solve(mass, qacc_smooth, sign, dcoef, aref, floss, friction, iterations):
     """The constraint force (6,) at the minimum over qacc of MuJoCo's primal cost
 
@@ -298,7 +279,7 @@ def _solve(mass, qacc_smooth, sign, dcoef, aref, floss, friction, iterations):
         x = sign * a - aref
         force, curv, _ = row_terms(x)
         grad = mass @ (a - qacc_smooth) - jnp.sum(sign * force, axis=0)
-        s = -_spd_solve(mass + jnp.diag(jnp.sum(curv * sign * sign, axis=0)), grad)
+        s = -spd_solve(mass + jnp.diag(jnp.sum(curv * sign * sign, axis=0)), grad)
         v = sign * s
         mass_s = mass @ s
         gauss0, gauss1 = (a - qacc_smooth) @ mass_s, s @ mass_s

@@ -49,6 +49,7 @@ import jax.numpy as jnp
 
 from mara_mjx.envs.chain import Chain
 from mara_mjx.envs.geometry import quat_canonical
+from mara_mjx.envs.linalg import spd_solve
 
 POSITION_SCALE = 0.1
 """m of TCP motion per unit of the policy's position output."""
@@ -156,8 +157,13 @@ def nominal_chain() -> Chain:
 
 
 def dls_step(jac: jax.Array, dx: jax.Array, damping: float = DAMPING) -> jax.Array:
-    """jac (m, n), dx (m,) -> dq = J^T (J J^T + damping^2 I)^-1 dx (n,)."""
+    """jac (m, n), dx (m,) -> dq = J^T (J J^T + damping^2 I)^-1 dx (n,). On a CPU backend
+    the solve is written out (envs/linalg.py: jaxlib's batched LAPACK LU can deadlock
+    XLA's CPU thread pool); elsewhere it is the library's LU (cuSolver on a GPU), as every
+    GPU result of this project was trained with."""
     gram = jac @ jac.T + (damping**2) * jnp.eye(jac.shape[0], dtype=jac.dtype)
+    if jax.default_backend() == "cpu":
+        return jac.T @ spd_solve(gram, dx)
     return jac.T @ jnp.linalg.solve(gram, dx)
 
 

@@ -537,7 +537,7 @@ def population(
 
     def init_population(key: jax.Array) -> RunnerState:
         keys = jnp.stack([key] + [jax.random.fold_in(key, k) for k in range(1, K)])
-        state = jax.vmap(init)(keys)
+        state = init_each(init, keys)
         return state.replace(fitness=jnp.zeros((K,), jnp.float32))
 
     def exploit(state: RunnerState) -> RunnerState:
@@ -615,7 +615,7 @@ def make_seed_trainer(
 
     def init_all() -> RunnerState:
         keys = jnp.stack([jax.random.key(s) for s in seeds])
-        return jax.vmap(trainer.init)(keys)
+        return init_each(trainer.init, keys)
 
     run_all = jax.vmap(trainer.run, in_axes=(0, None))
     if sharding_ is None:
@@ -624,6 +624,15 @@ def make_seed_trainer(
         init = jax.jit(init_all, out_shardings=sharding_)
         run = jax.jit(run_all, in_shardings=(sharding_, None), out_shardings=sharding_)
     return SeedTrainer(trainer=trainer, seeds=seeds, init=init, run=run)
+
+
+def init_each(init: Callable[[jax.Array], Any], keys: jax.Array) -> Any:
+    """`init` of each key, stacked: vmapped, except on a CPU backend, where the members
+    start one after another (`lax.map`). Vmapped, the networks' orthogonal initialisation
+    is a batched LAPACK QR, which can deadlock XLA's CPU thread pool (envs/linalg.py)."""
+    if jax.default_backend() == "cpu":
+        return jax.lax.map(init, keys)
+    return jax.vmap(init)(keys)
 
 
 def take_seed(tree: Any, i: int) -> Any:
