@@ -162,6 +162,9 @@ def dls_step(jac: jax.Array, dx: jax.Array, damping: float = DAMPING) -> jax.Arr
     XLA's CPU thread pool); elsewhere it is the library's LU (cuSolver on a GPU), as every
     GPU result of this project was trained with."""
     gram = jac @ jac.T + (damping**2) * jnp.eye(jac.shape[0], dtype=jac.dtype)
+    # Chosen at trace time by the default backend, so that a GPU program is exactly what
+    # it was. (`lax.platform_dependent` would also cover a CPU device on a GPU host, but
+    # it changes the GPU program's HLO: a `case` per call, checked by lowering for CUDA.)
     if jax.default_backend() == "cpu":
         return jac.T @ spd_solve(gram, dx)
     return jac.T @ jnp.linalg.solve(gram, dx)
