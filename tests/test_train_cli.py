@@ -303,12 +303,13 @@ def test_evaluate_cli_on_the_real_driver(real_driver_eval):
 
 # ------------------------------------------------------------------ several seeds
 # TINY (seed 0) with --seeds 2: seeds 0 and 1 vmapped in one program; seed 0 must match
-# a single run, on MARA's `default` preset (these tests are about the seeds machinery).
-# These programs used to deadlock XLA:CPU now and then (NOTES sections 15 and 28): batched
-# LAPACK calls (the IK step's LU, the vmapped orthogonal init's QR) blocking every thread
-# of XLA's CPU pool; since NOTES section 30 a CPU program makes none
+# a single run. With the CLI's own preset for MARA (ik_finish: the IK step in the vmapped
+# program), as a user runs it. These programs used to deadlock XLA:CPU now and then (NOTES
+# sections 15 and 28; they ran the `default` preset for that): batched LAPACK calls (the
+# IK step's LU, the vmapped orthogonal init's QR) blocking every thread of XLA's CPU
+# pool. Since NOTES section 30 a CPU program makes none
 # (test_ik_finish.py::test_cpu_training_programs_hold_no_batched_lapack_call...).
-SEEDS = [*TINY, "--seeds", "2", "--tensorboard", "false", "--preset", "default"]
+SEEDS = [*TINY, "--seeds", "2", "--tensorboard", "false"]
 
 
 @pytest.fixture(scope="session")
@@ -331,9 +332,9 @@ def seeds_run(users_env, tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def single_run(users_env, tmp_path_factory):
-    """TINY, seed 0, with seeds_run's preset, compiled like it, for their comparison."""
+    """TINY, seed 0, compiled like seeds_run, for their comparison."""
     out = tmp_path_factory.mktemp("single") / "run"
-    proc = run_module(users_env, "mara_mjx.train", *TINY, "--preset", "default", "--out", str(out))
+    proc = run_module(users_env, "mara_mjx.train", *TINY, "--out", str(out))
     assert proc.returncode == 0, proc.stderr[-4000:]
     return out, proc
 
