@@ -32,7 +32,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from mara_mjx import runs, seeds
+from mara_mjx import files, runs, seeds
 from mara_mjx.cli import (
     Section,
     UserError,
@@ -116,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
         else (runs.run_dir_of(path) / f"eval-{path.stem}-{env.config.driver}.json")
     )
     try:
-        runs.check_writable(out.parent)
+        files.check_writable(out.parent)
     except OSError as e:
         raise UserError(f"cannot write the report to {str(out)!r}: {e}") from e
 

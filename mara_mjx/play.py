@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from mara_mjx import runs
+from mara_mjx import files, runs
 from mara_mjx.cli import (
     Section,
     UserError,
@@ -164,7 +164,7 @@ def check_video_args(args: argparse.Namespace) -> Path | None:
     if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
         raise UserError(f"--fps {args.fps} must be a number > 0")
     try:
-        runs.check_writable(path.parent)
+        files.check_writable(path.parent)
     except OSError as e:
         raise UserError(f"cannot write the video to {str(path)!r}: {e}") from e
     return path

@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 from mara_mjx import files
-from mara_mjx.files import check_writable  # noqa: F401 (runs.check_writable: its callers)
 from mara_mjx.npzmeta import NPZ_ERRORS, read_npz_with_meta
 from mara_mjx.ppo.checkpoint import (
     CHECKPOINT_DIR,
@@ -147,8 +146,8 @@ def prepare_run_folder(out: Path, checkpoint: Path | None, source_run: Path | No
     from mara_mjx.cli import UserError
 
     try:
-        check_writable(out)
-        check_writable(out / CHECKPOINT_DIR)
+        files.check_writable(out)
+        files.check_writable(out / CHECKPOINT_DIR)
     except OSError as e:
         raise UserError(f"cannot write to the output folder {str(out)!r}: {e}") from e
     existing = list_checkpoints(out)

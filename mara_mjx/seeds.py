@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from mara_mjx import runs, sharding
+from mara_mjx import files, runs, sharding
 from mara_mjx.cli import UserError
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import logger, seed_eval
@@ -158,7 +158,7 @@ def train(plan: Any, env: Any, trainer: Any, host: Host) -> int:
     st = make_seed_trainer(trainer, seeds, devices=sharding.device_count(plan.run.devices))
     top = plan.out
     try:
-        runs.check_writable(top)
+        files.check_writable(top)
     except OSError as e:
         raise UserError(f"cannot write to the output folder {str(top)!r}: {e}") from e
     name = None if plan.checkpoint is None else plan.checkpoint.name
@@ -348,7 +348,7 @@ def evaluate_run(
         )
     out = Path(json_path) if json_path else top / f"eval-seeds-{env.config.driver}.json"
     try:
-        runs.check_writable(out.parent)
+        files.check_writable(out.parent)
     except OSError as e:
         raise UserError(f"cannot write the report to {str(out)!r}: {e}") from e
     name = loaded[0][1]["env_name"]

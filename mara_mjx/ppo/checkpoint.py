@@ -112,8 +112,6 @@ def _mismatch(name: str, value: np.ndarray, ref: Any) -> str:
 
 def save_checkpoint(path: str | os.PathLike, state: Any, meta: dict[str, Any]) -> Path:
     """Write `state` and `meta` to `path` (.npz) atomically."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     arrays = state_to_arrays(state)
     meta = {"format": FORMAT, **meta}
     arrays[META_KEY] = np.array(json.dumps(meta))

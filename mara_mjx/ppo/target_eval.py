@@ -264,6 +264,7 @@ def run(
     json_path: str | None,
 ) -> int:
     """The random-target branch of `python -m mara_mjx.evaluate` (flags already parsed)."""
+    from mara_mjx import files
     from mara_mjx import runs as ckpt
     from mara_mjx.cli import UserError
 
@@ -275,7 +276,7 @@ def run(
     default = f"eval-{checkpoint.stem}-{env.config.driver}-targets.json"
     out = Path(json_path) if json_path else ckpt.run_dir_of(checkpoint) / default
     try:
-        ckpt.check_writable(out.parent)
+        files.check_writable(out.parent)
     except OSError as e:
         raise UserError(f"cannot write the report to {str(out)!r}: {e}") from e
     orientation = bool(env.task.orientation)

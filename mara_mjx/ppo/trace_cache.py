@@ -128,10 +128,6 @@ def env_fingerprint(env: Any) -> list:
     ]
 
 
-def _write(path: Path, blob: bytes) -> None:
-    files.write_atomic(path, blob)
-
-
 def _pack(exported: Any, metric_keys: list[str]) -> bytes:
     header = json.dumps({"format": FORMAT, "metrics": metric_keys}).encode()
     return len(header).to_bytes(8, "little") + header + bytes(exported.serialize())
@@ -181,7 +177,7 @@ def exported_run(trainer: Any, state: Any, folder: Path | None) -> tuple[Callabl
             exported = jax.export.export(jax.jit(flat_run))(shapes, n)
             status = f"exported {path}"
             try:
-                _write(path, _pack(exported, metric_keys))
+                files.write_atomic(path, _pack(exported, metric_keys))
             except OSError as e:  # train with the program all the same
                 print(f"mara_mjx: cannot write {path}: {e}", file=sys.stderr)
                 status = f"exported (not saved: {e})"
