@@ -42,6 +42,57 @@ def _can_build_wheels() -> bool:
     return (major, minor) >= (70, 1) or importlib.util.find_spec("wheel") is not None
 
 
+# Only what a plain `pip install .` brings: every distribution outside the installed
+# mara_mjx's declared dependencies (their closure, extras and markers followed, without
+# mara_mjx's own extras) cannot be imported, as on a machine where pip installed nothing
+# else. Then the train CLI's trace cache serializes a program (jax.export; it needs
+# flatbuffers, which jax leaves optional: without it every train run printed "training
+# program failed: Please install 'flatbuffers' ...").
+PLAIN_DEPS_ONLY = """
+import importlib.abc, importlib.metadata as md, pathlib, sys
+from packaging.requirements import Requirement
+from packaging.utils import canonicalize_name as canon
+site = pathlib.Path(sys.argv[1]).resolve()
+ours = next(
+    d for d in md.distributions(path=[str(site)]) if canon(d.metadata["Name"]) == "mara-mjx"
+)
+allowed, todo = set(), [(r, "") for r in ours.requires or []]
+while todo:
+    text, extra = todo.pop()
+    req = Requirement(text)
+    if req.marker is not None and not req.marker.evaluate({"extra": extra}):
+        continue
+    name = canon(req.name)
+    first = name not in allowed
+    allowed.add(name)
+    try:
+        requires = md.distribution(req.name).requires or []
+    except md.PackageNotFoundError:
+        continue
+    todo += [(r, e) for r in requires for e in ([""] if first else []) + sorted(req.extras)]
+owners = md.packages_distributions()
+blocked = set()
+
+class PlainInstallOnly(importlib.abc.MetaPathFinder):
+    def find_spec(self, fullname, path=None, target=None):
+        top = fullname.partition(".")[0]
+        dists = {canon(d) for d in owners.get(top, [])}
+        if top == "mara_mjx" or not dists or dists & allowed:
+            return None
+        blocked.add(top)
+        raise ModuleNotFoundError(f"No module named {top!r}", name=top)
+
+sys.meta_path.insert(0, PlainInstallOnly())
+import jax, jax.numpy as jnp
+import mara_mjx, mara_mjx.train
+from mara_mjx.ppo import trace_cache
+exported = jax.export.export(jax.jit(lambda x: 2 * x))(jax.ShapeDtypeStruct((3,), jnp.float32))
+loaded, _ = trace_cache._unpack(trace_cache._pack(exported, []))
+assert loaded.call(jnp.ones(3, jnp.float32)).tolist() == [2.0, 2.0, 2.0]
+mara_mjx.make("MARA", check_target=False)
+print("OK; not importable in a plain install:", sorted(blocked))
+"""
+
 RESOLVE_ENV_STUDY = (
     "from mara_mjx.bench import runner; runner.resolve(runner.build_parser(''), ['env'])"
 )
@@ -105,3 +156,20 @@ def test_plain_install_finds_its_model_and_imports_everything(site, tmp_path):
     assert _snapshot(site / "mara_mjx") == before
     assert not (site / "benchmarks").exists()
     assert (tmp_path / "runs" / "benchmarks").is_dir()
+
+
+def test_plain_install_dependencies_cover_the_train_cli(site, tmp_path):
+    """What the train CLI imports, its trace cache's serialization included, comes with a
+    plain install's dependencies (fails without flatbuffers in pyproject.toml's)."""
+    env = {**os.environ, "PYTHONPATH": str(site), "JAX_PLATFORMS": "cpu"}
+    out = subprocess.run(
+        [sys.executable, "-c", PLAIN_DEPS_ONLY, str(site)],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.startswith("OK"), out.stdout
+    assert "Please install" not in out.stdout + out.stderr
