@@ -1,4 +1,4 @@
-"""Kernel-level summary of a `jax.profiler.trace` folder (GPU profiling aid, issue 14).
+"""Kernel-level summary of a `jax.profiler.trace` folder (a GPU profiling aid).
 
     from gpu_trace import traced, summarise
     with traced(DIR):

@@ -1,5 +1,7 @@
-"""Does a trained policy stay at the target? The deterministic policy from the reset pose to
-the horizon, per-step RMS distance (mm) printed for the first steps and the last steps.
+"""Does a trained policy stay at the target: per-step distance of its episode to the horizon.
+
+The deterministic policy from the reset pose to the horizon, per-step RMS distance (mm)
+printed for the first steps and the last steps.
 
     python benchmarks/hold_trace.py RUN_FOLDER [RUN_FOLDER ...] [--last 12]
 

@@ -1,8 +1,9 @@
-"""Evaluate saved fixed-target policies again (issue 11): the per-seed params that
-`orientation_study.py --save-params DIR` pickles, with the paper's evaluation (10
-episodes, stop at the first step with every axis within 5 mm) and the hold (the same
-episodes run to the horizon), as the saved policy runs (training-only parts of the
-config off), or with `--training` as the trainer's network ran (e.g. with
+"""Evaluate saved fixed-target policies again, from the params a study pickled.
+
+The per-seed params that `orientation_study.py --save-params DIR` pickles, with the
+paper's evaluation (10 episodes, stop at the first step with every axis within 5 mm) and
+the hold (the same episodes run to the horizon), as the saved policy runs (training-only
+parts of the config off), or with `--training` as the trainer's network ran (e.g. with
 train_ik_gate_roll's gate rule on), and with PPOConfig fields changed by `--set`.
 
     python benchmarks/orientation_params_eval.py DIR/MARAOrient_... --task MARAOrient \

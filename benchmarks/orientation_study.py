@@ -1,4 +1,6 @@
-"""Orientation study (issue 11): why the Orient policies settle off the target pose, and
+"""Fixed-target study: several seeds per (task, variant) in one program (the paper table's runs).
+
+Orientation study (issue 11): why the Orient policies settle off the target pose, and
 which trainer-side changes fix it. Several seeds of each (task, variant) train in one
 vmapped program (ppo.train.make_seed_trainer); every `--chunk` updates a deterministic
 probe records, per seed, where the policy takes the arm:

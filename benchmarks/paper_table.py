@@ -1,6 +1,7 @@
-"""The paper table (issue 11) from orientation_study.py JSON files: per task, the paper's
-evaluation per seed, mean and worst seed per axis beside the paper, hold, collisions and
-time to 5 mm and 1 mm.
+"""The paper table (results/paper_table/README.md) from orientation_study.py JSON files.
+
+Per task, the paper's evaluation per seed, mean and worst seed per axis beside the
+paper, hold, collisions and time to 5 mm and 1 mm.
 
     python benchmarks/paper_table.py \
         results/paper_table/paper_table_presets.json \

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The four tasks with the default preset (README "Training" table; issue 3).
+# The four fixed-target tasks with the default preset, then hold_trace.py (README training table).
 #   python -m mara_mjx.train --env TASK --preset default --out OUT/TASK --progress false
 #   (seed 0, 5e7 steps; --preset default since each task has its own preset now)
 # then benchmarks/hold_trace.py on every run (does the policy stay at the target; the

@@ -1,4 +1,4 @@
-"""Where one PPO update's time goes on the device (issue 14, items 3 and 4).
+"""Where one PPO update's time goes on the device: rollout vs SGD, kernel by kernel.
 
     python benchmarks/ppo_profile.py --task MARACollisionOrient [--preset orient_first] \
         [--set num_minibatches=8 ...] [--env-sizes 65536] --out profile.json

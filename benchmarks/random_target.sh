@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# The random-target tasks (issue 12): train with the default preset, then evaluate 1,000
+# The random-target tasks through the CLIs: train, then evaluate 1,000 held-out poses.
+# Train with the default preset, then evaluate 1,000
 # held-out target poses with the train driver and with the real driver at 0.3 rad/s.
 #   python -m mara_mjx.train --env TASK --out OUT/TASK --progress false [TRAIN_FLAGS]
 #   python -m mara_mjx.evaluate OUT/TASK --json OUT/TASK-train.json

@@ -1,7 +1,8 @@
-"""Evaluate saved random-target policies again (issue 12), e.g. on the real driver: the
-per-seed params that `random_target_study.py --save-params DIR` pickles, on `--poses`
-held-out poses exactly as the study's own evaluation (ppo.target_eval: evaluation stream
-disjoint from the training table's, hold to the horizon), with any driver.
+"""Evaluate saved random-target policies again on held-out poses, with any driver.
+
+The per-seed params that `random_target_study.py --save-params DIR` pickles, on
+`--poses` held-out poses exactly as the study's own evaluation (ppo.target_eval:
+evaluation stream disjoint from the training table's, hold to the horizon).
 
     python benchmarks/random_target_params_eval.py \
         benchmarks/results/random_target/params/study27_mcort --seeds 0 1 \

@@ -1,9 +1,11 @@
-"""Random-target study (issue 12): which trainer-side recipe gives one policy that reaches
-any pose of the region. Several seeds of each (task, variant) train in one vmapped program
-(ppo.train.make_seed_trainer, as benchmarks/orientation_study.py); at the end every seed's
-policy is evaluated on `--poses` held-out poses exactly as `python -m mara_mjx.evaluate`
-does for a random-target run (ppo.target_eval: evaluation stream disjoint from the
-training table's, hold to the horizon, per-axis mean / median / p95 / worst).
+"""Random-target study: several seeds per (task, variant) in one program, held-out poses.
+
+Which trainer-side recipe gives one policy that reaches any pose of the region. Several
+seeds of each (task, variant) train in one vmapped program (ppo.train.make_seed_trainer,
+as benchmarks/orientation_study.py); at the end every seed's policy is evaluated on
+`--poses` held-out poses exactly as `python -m mara_mjx.evaluate` does for a random-target
+run (ppo.target_eval: evaluation stream disjoint from the training table's, hold to the
+horizon, per-axis mean / median / p95 / worst).
 
     python benchmarks/random_target_study.py --tasks MARACollisionOrientRandomTarget \
         --seeds 0 1 --variants default 'train_reward_until=1.0' \

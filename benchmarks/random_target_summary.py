@@ -1,7 +1,8 @@
-"""Random-target studies as a table and a figure (issue 12): per seed the 1,000-pose
-evaluation of `random_target_study.py` (mean, p95 and worst per axis, within 5 / 1 mm,
-orientation, collisions, the real driver where measured), then the mean over seeds and the
-worst seed per axis.
+"""Random-target studies as a table and a figure, per seed and over seeds.
+
+Per seed the 1,000-pose evaluation of `random_target_study.py` (mean, p95 and worst per
+axis, within 5 / 1 mm, orientation, collisions, the real driver where measured), then the
+mean over seeds and the worst seed per axis.
 
     python benchmarks/random_target_summary.py \
         benchmarks/results/random_target/study27_ik_gate_0.1.json \

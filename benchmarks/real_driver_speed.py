@@ -1,4 +1,4 @@
-"""The real driver's speed with contacts detected and with contacts solved (issue 14 item 5).
+"""The real driver's speed with contacts detected and with contacts solved.
 
 Configurations of `make(task, driver="real", real_contacts=..., kinematics=...)`:
 

@@ -1,5 +1,7 @@
-"""Sim-to-real robustness table (issue 13): three training recipes, each evaluated with
-the real driver on randomised physics drawn from a held-out seed.
+"""Sim-to-real robustness table: three training recipes on randomised real-driver physics.
+
+Three training recipes (issue 13), each evaluated with the real driver on randomised
+physics drawn from a held-out seed.
 
     python benchmarks/sim2real.py --out $OUT                 # one GPU, < 9 minutes
     python benchmarks/sim2real.py --out /tmp/s2r --tiny      # CPU smoke test (minutes)

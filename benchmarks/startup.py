@@ -1,4 +1,4 @@
-"""Where the seconds before the first PPO update go: python benchmarks/startup.py
+"""Where the seconds before the first PPO update go (in process, or the CLI's wall-clock).
 
 Two measurements of `python -m mara_mjx.train --env ENV` (tiny settings by default):
 

@@ -1,4 +1,4 @@
-"""Where the train driver's env step spends its FLOPs and bytes (issue 14, item 4).
+"""Where the train driver's env step spends its FLOPs and bytes (XLA cost analysis).
 
     python benchmarks/step_cost.py --envs 4096 --steps 20          # any device
     python benchmarks/step_cost.py --envs 65536 --steps 100 --out step_cost.json   # a GPU

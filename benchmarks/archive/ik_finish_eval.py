@@ -5,7 +5,7 @@ saved and with their joint targets replaced by the IK step (`task_space.pose_ste
 position only) within 6 cm (or 15 cm) of the target, directly or first to 1 cm short of
 it, on two sets of evaluation episodes:
 
-    python benchmarks/ik_finish_eval.py MARA benchmarks/results/paper_table/params/MARA
+    python benchmarks/archive/ik_finish_eval.py MARA benchmarks/results/paper_table/params/MARA
 
 CPU, a few minutes. An experiment, not a policy option.
 """
@@ -26,7 +26,7 @@ from mara_mjx.envs.task_space import pose_step
 from mara_mjx.ppo.config import EvalConfig
 from mara_mjx.ppo.evaluation import make_evaluate
 
-sys.path.insert(0, os.path.dirname(__file__))
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # benchmarks/
 from orientation_study import seed_row  # noqa: E402
 from random_target_study import load_saved_policy  # noqa: E402
 

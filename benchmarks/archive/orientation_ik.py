@@ -7,7 +7,7 @@ collided, joints at their limits) and, for each settled configuration, where a l
 descent from it ends: a branch with the pose exact, or stuck at a joint limit with the
 orientation off.
 
-    python benchmarks/orientation_ik.py [--starts 400] \
+    python benchmarks/archive/orientation_ik.py [--starts 400] \
         [--out benchmarks/results/orientation_ik.json]
 """
 

@@ -9,7 +9,7 @@ Gaussian noise of several sizes (what PPO maximises with its joint-space explora
 under the env's reward and under the default preset's training reward (beta 0.5, gamma
 0.02). Kinematics: mara_mjx.envs.chain (checked against MJX in tests/test_chain.py).
 
-    python benchmarks/orientation_landscape.py \
+    python benchmarks/archive/orientation_landscape.py \
         benchmarks/results/orientation/study10b_task_actions_and_default.json \
         --task MARACollisionOrient --out benchmarks/results/orientation/landscape.md
 """
@@ -95,7 +95,8 @@ def main() -> None:
     lines = [
         f"# Reward landscape around the settled {args.task} policies ({args.variant} preset)",
         "",
-        f"Command: `python benchmarks/orientation_landscape.py {args.study} --task {args.task}`",
+        f"Command: `python benchmarks/archive/orientation_landscape.py {args.study} "
+        f"--task {args.task}`",
         f"(settled configurations from `{run.get('variant')}` in {args.study}, "
         f"{args.samples} noise samples per point, same samples at both points).",
         "",

@@ -1,6 +1,6 @@
 """The PPO's shape for time to accuracy (issue 14, item 3): one row per variant.
 
-    python benchmarks/ppo_shape.py --task MARACollisionOrient --seeds 3 --parallel 2 \
+    python benchmarks/archive/ppo_shape.py --task MARACollisionOrient --seeds 3 --parallel 2 \
         --variant base: --variant mb8:"--num_minibatches 8" ... --out DIR
 
 Each `--variant NAME:FLAGS` (train CLI flags on top of the task's default preset) is

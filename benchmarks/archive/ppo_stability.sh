@@ -5,7 +5,7 @@
 #   nondet       the same with --xla_gpu_deterministic_ops=false (speed cost of determinism)
 #   lr1e-4       learning rate 1e-4 instead of 3e-4
 #   noadvnorm    no per-minibatch advantage normalisation
-# Usage: bash benchmarks/ppo_stability.sh OUT_DIR   (progress.csv + summary.json per run)
+# Usage: bash benchmarks/archive/ppo_stability.sh OUT_DIR   (progress.csv + summary.json per run)
 set -u
 out=${1:-/tmp/ppo_stability}
 base=(--env MARACollisionOrient --num_envs 2048 --num_steps 32 --num_minibatches 32

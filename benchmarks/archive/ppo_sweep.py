@@ -1,6 +1,6 @@
 """Time to accuracy of PPO for several rollout shapes, then the chosen shape on every task.
 
-    python benchmarks/ppo_sweep.py --task MARACollisionOrient \
+    python benchmarks/archive/ppo_sweep.py --task MARACollisionOrient \
         --shapes 1024x32 2048x32 4096x16 8192x8 --total 100000000 --final-total 200000000
 
 For each `ENVSxSTEPS[@REWARD_SCALE]` shape it runs `python -m mara_mjx.train` (minibatches of about

@@ -12,7 +12,7 @@
 #   relfloorg9 relfloor with --gamma 0.9
 # Then benchmarks/hold_trace.py on every run: per-step distance of one deterministic
 # episode to the horizon and the paper's evaluation run to the horizon.
-# Usage: bash benchmarks/ppo_variants.sh OUT_DIR [NAME ...]
+# Usage: bash benchmarks/archive/ppo_variants.sh OUT_DIR [NAME ...]
 set -u
 out=${1:-/tmp/ppo_variants}; shift || true
 names=${*:-rel floor ent relfloor}

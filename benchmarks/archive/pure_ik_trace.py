@@ -4,7 +4,8 @@ without `orient_first` (envs/task_space.pose_step; benchmarks/NOTES.md section 2
 traces the deployed orient-first rule as committed (section 27's hold included), so
 section 26's numbers, made with what is now the loose form, do not reproduce exactly.
 
-    python benchmarks/pure_ik_trace.py --task MARACollisionOrient [--orient-first] [--steps 120]
+    python benchmarks/archive/pure_ik_trace.py --task MARACollisionOrient [--orient-first] \
+        [--steps 120]
 
 CPU, seconds.
 """

@@ -9,8 +9,9 @@ error per axis, the fraction of poses with any axis over 10 deg, and per joint t
 fraction of final poses within 0.02 rad of a limit (all poses, those over 10 deg, the
 rest), with the mean and spread of the final joints.
 
-    python benchmarks/random_target_postures.py DIR/MARACollisionOrientRandomTarget_default \
-        --seeds 0 1 2 3 4 [--ik-finish 100] [--set 'ik_gate=0.1']
+    python benchmarks/archive/random_target_postures.py \
+        DIR/MARACollisionOrientRandomTarget_default --seeds 0 1 2 3 4 [--ik-finish 100] \
+        [--set 'ik_gate=0.1']
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from mara_mjx.envs import targets
 from mara_mjx.envs.task_space import pose_step
 from mara_mjx.ppo import target_eval
 
-sys.path.insert(0, os.path.dirname(__file__))
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # benchmarks/
 from orientation_study import parse_variant  # noqa: E402
 from random_target_study import load_saved_policy  # noqa: E402
 
