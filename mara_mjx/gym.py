@@ -47,9 +47,12 @@ unless `width=`/`height=` are given; `camera=` a model camera name, default a fr
 on the workspace) of the arm at the current joint positions, with the TCP site and the
 target marker at the env's target; offscreen through EGL or OSMesa (MUJOCO_GL if set).
 `render_mode="human"`: the interactive MuJoCo viewer (needs a desktop), updated at every
-reset and step. `metadata["render_fps"]` is 1 / control_dt (20 by default). `check_env`
-builds every declared render mode, the viewer included, so run it with
-`skip_render_check=True` on a machine without a display.
+reset and step. Nothing is drawn, and no OpenGL context or window exists, before the
+first `render()` (human: the first reset): stable-baselines3's `make_vec_env` builds
+every env with render_mode="rgb_array", and a GL context made current in a process that
+then imports triton (torch does, when SB3 trains) crashes it. `metadata["render_fps"]`
+is 1 / control_dt (20 by default). `check_env` builds every declared render mode, the
+viewer included, so run it with `skip_render_check=True` on a machine without a display.
 
 Vector env autoreset (`autoreset_mode=`, declared in `metadata["autoreset_mode"]`):
   * "next_step" (default; gymnasium's own mode, which its vector wrappers such as
@@ -150,8 +153,10 @@ class MaraGymEnv(gymnasium.Env):
         max_episode_steps=256, driver="real", velocity=0.3, target_pos=(x, y, z).
 
     `reset` and `step` are `jax.jit(env.reset)` and `jax.jit(env.step)`, compiled once
-    per instance at the first call (or at `precompile()`). A renderer or viewer is made
-    at construction, so a machine that cannot render fails here (`RenderError`).
+    per instance at the first call (or at `precompile()`). The offscreen GL context
+    (rgb_array) or the viewer's window (human) is made at the first `render()`, where a
+    machine that cannot render fails (`RenderError`); a bad size or camera fails here,
+    and so does human mode without a display.
     """
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 20}
@@ -175,11 +180,12 @@ class MaraGymEnv(gymnasium.Env):
         if render_mode == "rgb_array":
             from mara_mjx.render import ArmRenderer
 
-            self._renderer = ArmRenderer(width, height, camera)
+            self._renderer = ArmRenderer(width, height, camera)  # no GL context yet
+            self._render_args = (width, height, camera)
         elif render_mode == "human":
-            from mara_mjx.render import Viewer
+            from mara_mjx.render import check_display
 
-            self._viewer = Viewer()
+            check_display()  # the window itself opens at the first render()
         self._jit_reset = jax.jit(self.env.reset)
         self._jit_step = jax.jit(self.env.step)
         self._key: jax.Array | None = None
@@ -247,8 +253,16 @@ class MaraGymEnv(gymnasium.Env):
         q, target_pos, target_quat = jax.device_get(
             (self.state.q, self.state.params.target_pos, self.state.params.target_quat)
         )
-        if self._renderer is not None:
+        if self.render_mode == "rgb_array":
+            if self._renderer is None:  # after close()
+                from mara_mjx.render import ArmRenderer
+
+                self._renderer = ArmRenderer(*self._render_args)
             return self._renderer.frame(q, target_pos, target_quat)
+        if self._viewer is None:
+            from mara_mjx.render import Viewer
+
+            self._viewer = Viewer()
         self._viewer.show(q, target_pos, target_quat)
         return None
 

@@ -263,7 +263,8 @@ def main(argv: list[str] | None = None) -> int:
         if video_path is None:
             viewer, renderer = render.Viewer(), None
         else:
-            viewer, renderer = None, render.ArmRenderer(args.width, args.height, args.camera)
+            renderer = render.ArmRenderer(args.width, args.height, args.camera).open()
+            viewer = None
     except (render.RenderError, ValueError) as e:
         raise UserError(str(e)) from e
 

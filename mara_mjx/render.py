@@ -14,6 +14,12 @@ target marker (the green mocap body `target` with its blue z axis) at the target
 pose is written into a `mujoco.MjData` of the same model (assets/mara.xml) and
 `mj_forward` computes the rest.
 
+The offscreen GL context is made at the first `frame()` (or `open()`), not when the
+renderer is built: a process that never renders never has one. This matters beyond
+saving the work: a GL context made current in a process that later imports triton (as
+torch does when stable-baselines3 trains, and SB3's `make_vec_env` builds every env with
+render_mode="rgb_array") crashes that process with a segmentation fault.
+
 Offscreen GL backend (`gl_backend()`): a user-set MUJOCO_GL is used as given; otherwise
 EGL, then OSMesa, whichever first renders a test frame in a child process (a process
 cannot switch PyOpenGL platforms once one is loaded, so the choice is tried outside
@@ -164,8 +170,9 @@ class ArmRenderer:
       model: the MjModel to draw (default: assets/mara.xml, with a SHADOW_SIZE shadow
         map).
 
-    Raises RenderError when no GL backend works (see `gl_backend`), ValueError for a
-    bad size or camera. Call `close()` (or use `with`) to free the GL context.
+    ValueError for a bad size or camera, here. The GL context is made at the first
+    `frame()` or `open()` (RenderError there when no GL backend works, see
+    `gl_backend`). Call `close()` (or use `with`) to free it.
     """
 
     def __init__(
@@ -186,24 +193,41 @@ class ArmRenderer:
         self.width, self.height = int(width), int(height)
         self.camera = self._camera(camera)
         self.data = mujoco.MjData(self.model)
-        self.backend = gl_backend()
+        self.backend: str | None = None  # the GL backend, once open
         self._gl = self._context = None
-        self._gl = _gl_context(self.backend, self.width, self.height)
+        self._closed = False
         self._scene = mujoco.MjvScene(self.model, maxgeom=1000)
         self._option = mujoco.MjvOption()
+        self._rect = mujoco.MjrRect(0, 0, self.width, self.height)
+
+    @property
+    def is_open(self) -> bool:
+        """True once the GL context exists (after the first `frame()` or `open()`)."""
+        return self._context is not None
+
+    def open(self) -> ArmRenderer:
+        """Make the GL context now (`frame()` does at its first call); RenderError if no
+        GL backend works. Idempotent. Returns self."""
+        if self._closed:
+            raise RuntimeError("ArmRenderer used after close()")
+        if self._context is not None:
+            return self
+        self.backend = gl_backend()
+        gl = _gl_context(self.backend, self.width, self.height)
         try:
-            self._context = mujoco.MjrContext(self.model, mujoco.mjtFontScale.mjFONTSCALE_150)
+            context = mujoco.MjrContext(self.model, mujoco.mjtFontScale.mjFONTSCALE_150)
         except mujoco.FatalError as e:  # e.g. glfw without a display: no GL loaded
-            self._gl.free()
+            gl.free()
             raise RenderError(
                 f"MuJoCo cannot render with MUJOCO_GL={self.backend}: {e}. Try MUJOCO_GL="
                 + " or MUJOCO_GL=".join(OFFSCREEN_BACKENDS)
             ) from e
+        self._gl, self._context = gl, context
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
-        self._rect = mujoco.MjrRect(0, 0, self.width, self.height)
         # Free the context before the GL library shuts down (egl registers its own
         # atexit hook earlier; atexit runs hooks last-in first-out).
         atexit.register(self.close)
+        return self
 
     def _camera(self, name: str | None) -> mujoco.MjvCamera:
         if name is None:
@@ -227,8 +251,9 @@ class ArmRenderer:
     ) -> np.ndarray:
         """(height, width, 3) uint8 RGB of the arm at q (6,) rad with the target marker
         at target_pos (3,) m / target_quat (w, x, y, z) (the model's default if None)."""
-        if self._context is None:
+        if self._closed:
             raise RuntimeError("ArmRenderer.frame called after close()")
+        self.open()
         set_pose(self.model, self.data, q, target_pos, target_quat)
         self._gl.make_current()
         mujoco.mjv_updateScene(
@@ -246,7 +271,8 @@ class ArmRenderer:
         return np.ascontiguousarray(pixels[::-1])  # OpenGL's rows run bottom-up
 
     def close(self) -> None:
-        """Free the GL resources (idempotent)."""
+        """Free the GL resources (idempotent); the renderer cannot be used afterwards."""
+        self._closed = True
         atexit.unregister(self.close)
         if self._context is not None:
             self._gl.make_current()

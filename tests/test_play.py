@@ -45,7 +45,8 @@ pytestmark = pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")
 def gl() -> str:
     """The offscreen GL backend; skips the test where none renders."""
     try:
-        with render.ArmRenderer(8, 8):
+        with render.ArmRenderer(8, 8) as renderer:
+            renderer.open()
             return render.gl_backend()
     except render.RenderError as e:
         pytest.skip(f"no offscreen OpenGL backend on this machine: {e}")
@@ -115,6 +116,34 @@ def test_rgb_array_frames_follow_the_pose_and_the_target(rgb_env):
     marker = env._renderer.model.body("target").mocapid[0]
     np.testing.assert_allclose(env._renderer.data.mocap_pos[marker], target, atol=1e-6)
     assert env._jit_reset._cache_size() == 1
+
+
+def test_no_gl_context_before_the_first_render(gl, monkeypatch):
+    """stable-baselines3's make_vec_env builds every env with render_mode="rgb_array";
+    a GL context made current at construction crashed the process when torch then
+    imported triton (issue 34, item 13). The context comes at the first render()."""
+    made = []
+    real = render._gl_context
+    monkeypatch.setattr(render, "_gl_context", lambda *a: made.append(a) or real(*a))
+    monkeypatch.setattr(render, "_probe", lambda name: made.append(("probe", name)))
+    envs = [
+        gymnasium.make(gym_id("MARA"), render_mode="rgb_array", width=W, height=H) for _ in range(2)
+    ]
+    for i, env in enumerate(envs):
+        env.reset(seed=i)
+    assert made == [] and not envs[0].unwrapped._renderer.is_open
+    frame = envs[0].render()
+    assert frame.shape == (H, W, 3) and frame.std() > 10
+    assert len(made) == 1 and envs[0].unwrapped._renderer.is_open
+    assert not envs[1].unwrapped._renderer.is_open
+    envs[0].close()
+    np.testing.assert_array_equal(envs[0].render(), frame)  # a new renderer after close
+    for env in envs:
+        env.close()
+    with render.ArmRenderer(W, H) as renderer:
+        assert not renderer.is_open
+    with pytest.raises(RuntimeError, match="after close"):
+        renderer.open()
 
 
 def test_renderer_frames_and_video_files(rgb_env, tmp_path):
