@@ -91,6 +91,7 @@ STUDIES = {
     "limit": "mara_mjx.bench.limit:STUDY",
     "scaling": "mara_mjx.bench.scaling:STUDY",
     "tta": "mara_mjx.bench.tta:STUDY",
+    "robustness": "mara_mjx.bench.robustness:STUDY",
 }
 
 

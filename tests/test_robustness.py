@@ -1,0 +1,106 @@
+"""The robustness study's parts that need no training: recipes, the failure rule, the
+statistics across seeds (the study itself runs with --quick in test_benchmark.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mara_mjx.bench.robustness import (
+    RobustnessConfig,
+    failure,
+    iqm,
+    iqm_interval,
+    make_jobs,
+    split_recipe,
+    summarise,
+)
+
+
+def test_recipes_name_a_preset_or_the_cli_choice():
+    assert split_recipe("cli") == ("", "")
+    assert split_recipe("default --population 4") == ("default", "--population 4")
+    with pytest.raises(ValueError, match="unknown preset 'nope'.*'cli'"):
+        split_recipe("nope --randomize")
+
+
+@pytest.mark.parametrize(
+    "recipes, message",
+    [
+        (("default --seeds 4",), "the study sets --seeds"),
+        (("cli --no_such_flag 1",), "no_such_flag"),
+        (("cli", "cli"), "distinct"),
+        (("bogus",), "unknown preset"),
+    ],
+)
+def test_bad_recipes_are_refused(recipes, message):
+    with pytest.raises(ValueError, match=message):
+        RobustnessConfig(tasks=("MARA",), recipes=recipes)
+
+
+def test_jobs_are_the_users_seeds_command(tmp_path):
+    config = RobustnessConfig(
+        tasks=("MARA", "MARAOrient"), recipes=("cli", "default --randomize"), seeds=3
+    )
+    jobs = make_jobs(config, tmp_path)
+    assert [(j.task, j.recipe, j.preset) for j in jobs] == [
+        ("MARA", "cli", "ik_finish"),
+        ("MARA", "default --randomize", "default"),
+        ("MARAOrient", "cli", "orient_first"),
+        ("MARAOrient", "default --randomize", "default"),
+    ]
+    assert len({j.out for j in jobs}) == 4
+    cmd = jobs[1].command
+    assert cmd.startswith("python -m mara_mjx.train --env MARA --seed 1000 --seeds 3 ")
+    assert "--preset default --randomize " in cmd and cmd.endswith(str(jobs[1].out))
+    assert "--preset" not in jobs[0].command  # the CLI's own choice, as a user types it
+
+
+def test_iqm_is_the_mean_of_the_middle_half():
+    x = np.array([100.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, -50.0])  # middle half: 2, 3, 4, 5
+    assert iqm(x) == pytest.approx(3.5)
+    lo, hi = iqm_interval(x, 500)
+    assert lo <= 3.5 <= hi and hi > lo
+    assert iqm_interval(np.full(16, 2.0), 200) == (2.0, 2.0)
+
+
+def _row(position, reached=10, orientation=None, within=None):
+    row = {"paper": {"position_mm": position, "reached": reached, "episodes": 10}}
+    if orientation is not None:
+        row["paper"]["orientation_deg"] = orientation
+    if within is not None:
+        row["real"] = {"0.3": {"within_5": within}}
+    return row
+
+
+def test_a_seed_fails_below_the_papers_bar():
+    config = RobustnessConfig(tasks=("MARA",))
+    assert failure(_row([1.0, 1.0, 1.0]), "MARA", config) == []
+    assert failure(_row([1.0, 1.0, 1.0], reached=9), "MARA", config) == ["reached 9/10"]
+    (why,) = failure(_row([1.0, 7.0, 1.0]), "MARA", config)  # paper's y mean: 6.78 mm
+    assert "position over the paper's mean" in why and "7.00>6.78" in why
+    orient = _row([1.0, 1.0, 1.0], orientation=[0.1, 1.7, 0.1])  # pitch: paper 1.61 deg
+    (why,) = failure(orient, "MARAOrient", config)
+    assert why.startswith("orientation over") and "1.70>1.61" in why
+    (why,) = failure(_row([1.0, 1.0, 1.0], within=0.985), "MARA", config)
+    assert why == "real 0.3 rad/s: 98.5% within 5 mm/deg"
+
+
+def test_summary_names_the_worst_seed_per_metric():
+    config = RobustnessConfig(tasks=("MARA",), bootstrap=100)
+    rows = []
+    for seed, pos, within in [
+        (1000, [1, 2, 3], 1.0),
+        (1001, [9, 1, 1], 0.9),
+        (1002, [2, 2, 2], 1.0),
+    ]:
+        row = {"seed": seed, "task": "MARA", "recipe": "cli", **_row(pos, within=within)}
+        rows.append({**row, "failed": bool(failure(row, "MARA", config))})
+    summary = {r["metric"]: r for r in summarise(rows, config)}
+    paper = summary["paper position"]
+    assert paper["worst_seed"] == 1001 and paper["worst"] == [9, 1, 1]
+    assert paper["mean"] == pytest.approx([4.0, 5 / 3, 2.0])
+    assert paper["median"] == [2.0, 2.0, 2.0]
+    assert paper["failed_seeds"] == [1001]  # 9 mm > 5.74 and 90% within 5 mm
+    within = summary["real 0.3 rad/s within 5 mm(/deg)"]
+    assert within["worst_seed"] == 1001 and within["worst"] == [0.9]  # smaller is worse
