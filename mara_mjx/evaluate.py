@@ -24,6 +24,11 @@ JSON and markdown (default <run folder>/eval-seeds-<driver>.json, .md; mara_mjx.
 Random-target tasks (MARARandomTarget, ...): 1,000 held-out target poses instead, each
 episode run to the horizon, with per-axis mean, median, 95th percentile and worst error,
 JSON, markdown and a figure (`mara_mjx.ppo.target_eval`).
+
+Where the report goes is checked before anything runs: --json must name a file, not a
+folder, a checkpoint or a file of a run folder (config.json, progress.csv, eval.json, ...);
+an existing file is replaced only if it is an earlier report of this command (re-running
+an evaluation replaces its report), or with --overwrite (`mara_mjx.runs.check_output`).
 """
 
 from __future__ import annotations
@@ -76,7 +81,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--json",
         metavar="PATH",
         help="where to write the JSON report "
-        "(default: <run folder>/eval-<checkpoint>-<driver>.json)",
+        "(default: <run folder>/eval-<checkpoint>-<driver>.json); never a checkpoint or a "
+        "run folder's own file; an existing file only if it is an earlier report",
+    )
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the file --json names even if it is not an earlier report of this "
+        "command (still never a checkpoint or a run folder's own file)",
     )
     add_flags(parser, SECTIONS)
     add_cache_argument(parser)
@@ -85,6 +97,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    try:
+        return _main(args)
+    except files.WriteError as e:
+        raise UserError(f"cannot write {e.filename!r}: {e.strerror}") from e
+
+
+def _main(args: argparse.Namespace) -> int:
     configure_jax(args.compilation_cache, uses_real_driver(args, args.checkpoint))
     group = seeds.group_of(args.checkpoint)  # a run of several seeds: every seed's newest
     path = None if group else ckpt.find_checkpoint(args.checkpoint)
@@ -97,29 +116,31 @@ def main(argv: list[str] | None = None) -> int:
         check_rate_limit(config, "real" if uses_real_driver(args, args.checkpoint) else "train")
     if group is not None:
         top = Path(args.checkpoint)
-        return seeds.evaluate_run(top, group, config, env_overrides(args), args.json)
-    policy = policy_io.policy_from_checkpoint(arrays, meta)
+        return seeds.evaluate_run(
+            top, group, config, env_overrides(args), args.json, args.overwrite
+        )
     env = runs.make_env(meta, **env_overrides(args))
+    driver = env.config.driver
     if is_random_target(env):  # held-out target poses instead of the paper's table
+        default = runs.run_dir_of(path) / f"eval-{path.stem}-{driver}-targets.json"
+        out = check_report(Path(args.json) if args.json else default, args.overwrite)
+        for suffix in (".md", ".png"):  # written beside it
+            what = f"{suffix[1:]} file beside the report"
+            runs.check_output(out.with_suffix(suffix), what, runs.companion_of(out), args.overwrite)
+    else:
+        default = runs.run_dir_of(path) / f"eval-{path.stem}-{driver}.json"
+        out = check_report(Path(args.json) if args.json else default, args.overwrite)
+    policy = policy_io.policy_from_checkpoint(arrays, meta)
+    if is_random_target(env):
         return target_eval.run(
             checkpoint=path,
             meta=meta,
             env=env,
             policy=policy,
             eval_overrides=overrides(args, "eval"),
-            json_path=args.json,
+            json_path=str(out),
         )
     name = meta["env_name"]
-    out = (
-        Path(args.json)
-        if args.json
-        else (runs.run_dir_of(path) / f"eval-{path.stem}-{env.config.driver}.json")
-    )
-    try:
-        files.check_writable(out.parent)
-    except OSError as e:
-        raise UserError(f"cannot write the report to {str(out)!r}: {e}") from e
-
     print(f"checkpoint: {path}")
     print(
         f"env: {name}, driver {env.config.driver!r}"
@@ -146,6 +167,11 @@ def main(argv: list[str] | None = None) -> int:
     runs.write_json(out, report)
     print(f"wrote {out}")
     return 0
+
+
+def check_report(out: Path, overwrite: bool) -> Path:
+    """`out` if the JSON report may be written there (runs.check_output), else UserError."""
+    return runs.check_output(out, "--json report", runs.is_report, overwrite)
 
 
 if __name__ == "__main__":

@@ -42,6 +42,11 @@ File layout (`np.load(path)`; no pickles):
                        observation_layout [{name, start, stop, units, description}],
                        action {joint_names, lower, upper, units, description},
                        source {checkpoint, update, env_steps}
+
+The output is written atomically and never replaces a checkpoint (any file of a
+`checkpoints/` folder, or a mara_mjx checkpoint anywhere) or a run folder's own file; an
+existing file only if it is an exported policy (exporting again replaces it), or with
+`--overwrite` (`mara_mjx.runs.check_output`).
 """
 
 from __future__ import annotations
@@ -75,15 +80,20 @@ class ExportError(ValueError):
 
 
 def export_policy(
-    checkpoint: str | os.PathLike, out_path: str | os.PathLike, drop_ik_finish: bool = False
+    checkpoint: str | os.PathLike,
+    out_path: str | os.PathLike,
+    drop_ik_finish: bool = False,
+    overwrite: bool = False,
 ) -> Path:
     """Write the deterministic policy of `checkpoint` (a checkpoint file, or a run folder:
     its newest checkpoint) to `out_path`, atomically: .npz (numpy) or .onnx (an ONNX
     model, needs the `onnx` package). A policy with an IK finish (PPOConfig.ik_finish, the
     position tasks' presets) keeps it in .npz (the arm's chain in the meta's ik_finish,
     run by mara_mjx/ik_numpy.py); .onnx refuses it unless `drop_ik_finish`, which writes
-    the learnt policy alone (the meta's ik_finish_dropped says so) in either format.
-    Raises ExportError (or mara_mjx.ppo.CheckpointError, also a ValueError) with what is
+    the learnt policy alone (the meta's ik_finish_dropped says so) in either format. An
+    existing `out_path` is replaced only if it is an exported policy, or with
+    `overwrite`; never a checkpoint or a run folder's file (module docstring). Raises
+    ExportError (or mara_mjx.ppo.CheckpointError, also a ValueError) with what is
     wrong."""
     import mara_mjx
     from mara_mjx import runs
@@ -102,9 +112,11 @@ def export_policy(
                 "writing .onnx needs the onnx package: pip install 'mara_mjx[onnx]' "
                 "(or pip install onnx)"
             ) from e
+    from mara_mjx.cli import UserError
+
     try:
-        runs.check_not_checkpoint(out_path, "export output")
-    except ValueError as e:
+        runs.check_output(out_path, "export output", is_exported, overwrite)
+    except UserError as e:
         raise ExportError(str(e)) from e
     source = ckpt.find_checkpoint(checkpoint)
     arrays, meta = ckpt.load_checkpoint(source)
@@ -203,6 +215,23 @@ def export_policy(
     else:
         _write_atomic(out_path, lambda f: np.savez(f, **out))
     return out_path
+
+
+def is_exported(path: Path) -> bool:
+    """True if `path` is a policy file this module wrote (.npz or .onnx)."""
+    if path.suffix == ".onnx":
+        try:
+            import onnx
+
+            model = onnx.load(str(path), load_external_data=False)
+        except Exception:  # not ONNX, or no onnx package: not known to be ours
+            return False
+        return any(p.key == "mara_mjx" for p in model.metadata_props)
+    try:
+        _, meta = read_npz_with_meta(path)
+    except NPZ_ERRORS:
+        return False
+    return isinstance(meta, dict) and meta.get("format") in FORMATS
 
 
 def _write_atomic(path: Path, write: Any) -> None:
@@ -350,9 +379,15 @@ def main(argv: list[str] | None = None) -> int:
         "without it: the learnt joint-space policy alone (.onnx needs it; .npz keeps the "
         "finish otherwise)",
     )
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace OUT even if it is not an exported policy (never a checkpoint or a "
+        "run folder's own file)",
+    )
     args = parser.parse_args(argv)
     try:
-        out = export_policy(args.checkpoint, args.out, args.drop_ik_finish)
+        out = export_policy(args.checkpoint, args.out, args.drop_ik_finish, args.overwrite)
         if out.suffix == ".onnx":
             print(f"wrote {out}: ONNX (opset 17), input obs (N, obs_size) float32, outputs "
                   "action and action_clipped (N, 6) rad")  # fmt: skip

@@ -57,14 +57,26 @@ def folder(out: Path, seed: int) -> Path:
 
 
 def group_of(path: str | Path | None) -> dict[str, Any] | None:
-    """The seeds.json of a multi-seed run folder, or None for anything else."""
+    """The seeds.json of a multi-seed run folder, or None for anything else;
+    CheckpointError if it is unreadable or does not list distinct seeds (ints)."""
     if path is None or not (Path(path) / SEEDS_JSON).is_file():
         return None
+    where = str(Path(path) / SEEDS_JSON)
     try:
         group = json.loads((Path(path) / SEEDS_JSON).read_text())
-        [int(s) for s in group["seeds"]]
+        seeds = group["seeds"]
     except (OSError, ValueError, KeyError, TypeError) as e:
-        raise ckpt.CheckpointError(f"{str(Path(path) / SEEDS_JSON)!r} is unreadable: {e}") from e
+        raise ckpt.CheckpointError(f"{where!r} is unreadable: {e}") from e
+    if (
+        not isinstance(seeds, list)
+        or not seeds
+        or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)
+        or len(set(seeds)) != len(seeds)
+    ):
+        raise ckpt.CheckpointError(
+            f"{where!r} is damaged: its 'seeds' must list the run's seeds, distinct ints "
+            f">= 0 (one seed_<s> folder each), not {seeds!r}"
+        )
     return group
 
 
@@ -157,16 +169,42 @@ def train(plan: Any, env: Any, trainer: Any, host: Host) -> int:
     seeds = tuple(range(plan.ppo.seed, plan.ppo.seed + plan.run.seeds))
     st = make_seed_trainer(trainer, seeds, devices=sharding.device_count(plan.run.devices))
     top = plan.out
+    locks = [_claim(top)]
+    try:
+        return _train(plan, env, trainer, host, st, seeds, locks)
+    finally:
+        for lock in locks:
+            lock.release()
+
+
+def _claim(top: Path) -> files.FolderLock:
+    """Create and lock a multi-seed run's folder: new, empty or a multi-seed run's."""
+    if top.is_dir() and not runs.is_empty(top) and not runs.is_group_folder(top):
+        what = "a run of one seed" if runs.is_run_folder(top) else "not a mara_mjx run folder"
+        raise UserError(
+            f"output folder {str(top)!r} exists and is {what}; nothing was changed there. "
+            "Choose a new or empty folder for --out"
+        )
     try:
         files.check_writable(top)
     except OSError as e:
         raise UserError(f"cannot write to the output folder {str(top)!r}: {e}") from e
+    lock = runs.claim_folder(top)
+    files.remove_temporaries(top, (*runs.GROUP_FILES, "write-test"))
+    return lock
+
+
+def _train(plan, env, trainer, host: Host, st, seeds, locks: list) -> int:
+    """train() in its claimed folder; the seeds' folders' locks are added to `locks`."""
+    top = plan.out
     name = None if plan.checkpoint is None else plan.checkpoint.name
     if name is None and any(ckpt.list_checkpoints(folder(top, s)) for s in seeds):
         raise UserError(
             f"output folder {str(top)!r} already holds a run; continue it with --resume "
             f"{top} or choose another --out"
         )
+    # first, so that a run killed from here on is known as a multi-seed run's folder
+    runs.write_json(top / SEEDS_JSON, {"env_name": plan.env_name, "seeds": list(seeds)})
     lanes = []
     for s in seeds:
         p = dataclasses.replace(
@@ -177,7 +215,7 @@ def train(plan: Any, env: Any, trainer: Any, host: Host) -> int:
             checkpoint=None if name is None else folder(plan.source_run, s) / "checkpoints" / name,
             source_run=None if name is None else folder(plan.source_run, s).resolve(),
         )
-        runs.prepare_run_folder(p.out, p.checkpoint, p.source_run)
+        locks.append(runs.prepare_run_folder(p.out, p.checkpoint, p.source_run))
         progress = {"update": 0, "env_steps": 0, "time_s": 0.0, "milestones": {}}
         if p.checkpoint is not None:
             progress = ckpt.load_checkpoint(p.checkpoint)[1]["progress"]
@@ -202,19 +240,18 @@ def train(plan: Any, env: Any, trainer: Any, host: Host) -> int:
         "run": plan.run.replace(out=str(top)).to_dict(),
     }
     print(json.dumps({**resolved, "seeds": list(seeds)}, indent=2), flush=True)
-    runs.write_json(top / SEEDS_JSON, {"env_name": plan.env_name, "seeds": list(seeds)})
 
     orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
-    for lane in lanes:
-        lane.log = logger.RunLogger(
-            lane.plan.out,
-            logger.columns(orientation),
-            plan.run.tensorboard,
-            resume_update=lane.progress["update"] if plan.checkpoint else None,
-            resume_env_steps=lane.progress["env_steps"],
-        )
     try:
-        with host.stop:
+        with host.stop:  # (on resume the loggers rewrite progress.csv: inside it)
+            for lane in lanes:
+                lane.log = logger.RunLogger(
+                    lane.plan.out,
+                    logger.columns(orientation),
+                    plan.run.tensorboard,
+                    resume_update=lane.progress["update"] if plan.checkpoint else None,
+                    resume_env_steps=lane.progress["env_steps"],
+                )
             if state is None:
                 state = st.init()
             print(
@@ -234,11 +271,20 @@ def train(plan: Any, env: Any, trainer: Any, host: Host) -> int:
                 f"--out {top}) starts the run over"
             )
         print(f"\n{message}", file=sys.stderr)
-        return 130
+        return runs.exit_status()
     finally:
         for lane in lanes:
-            lane.log.close()
-    _finish(env, state, lanes, plan, host, orientation)
+            if lane.log is not None:
+                lane.log.close()
+    try:
+        _finish(env, state, lanes, plan, host, orientation)
+    except KeyboardInterrupt:
+        print(
+            "\ninterrupted during the final evaluation; training is complete and every "
+            f"seed's last checkpoint whole: --resume {top} runs the evaluation again",
+            file=sys.stderr,
+        )
+        return runs.exit_status()
     return 0
 
 
@@ -326,15 +372,21 @@ def _finish(env, state, lanes: list[Lane], plan, host: Host, orientation: bool) 
 
 def write_summary(out: Path, report: dict[str, Any], stem: str = "seeds") -> None:
     runs.write_json(Path(out) / f"{stem}.json", report)
-    (Path(out) / f"{stem}.md").write_text(seed_eval.markdown(report) + "\n")
+    files.write_atomic(Path(out) / f"{stem}.md", seed_eval.markdown(report) + "\n")
 
 
 def evaluate_run(
-    top: Path, group: dict[str, Any], eval_config: Any, env_overrides: dict, json_path
+    top: Path,
+    group: dict[str, Any],
+    eval_config: Any,
+    env_overrides: dict,
+    json_path,
+    overwrite: bool = False,
 ) -> int:
     """`python -m mara_mjx.evaluate RUN` on a multi-seed run: every seed's newest
     checkpoint in one vmapped evaluation, the summary across seeds printed and written
-    (default <RUN>/eval-seeds-<driver>.json and .md)."""
+    (default <RUN>/eval-seeds-<driver>.json and .md; an existing file there only if it
+    is an earlier report, or with `overwrite`: runs.check_output)."""
     from mara_mjx.envs.random_target import is_random_target
 
     seeds = [int(s) for s in group["seeds"]]
@@ -347,10 +399,9 @@ def evaluate_run(
             f"python -m mara_mjx.evaluate {top}/seed_<s> (seeds {seeds})"
         )
     out = Path(json_path) if json_path else top / f"eval-seeds-{env.config.driver}.json"
-    try:
-        files.check_writable(out.parent)
-    except OSError as e:
-        raise UserError(f"cannot write the report to {str(out)!r}: {e}") from e
+    runs.check_output(out, "--json report", runs.is_report, overwrite)
+    md = out.with_suffix(".md")
+    runs.check_output(md, "markdown report", runs.companion_of(out), overwrite)
     name = loaded[0][1]["env_name"]
     print(f"run: {top}, {len(seeds)} seeds; checkpoints: {[str(p) for p in paths]}")
     print(f"env: {name}, driver {env.config.driver!r}, horizon {env.max_episode_steps} steps")
@@ -372,7 +423,7 @@ def evaluate_run(
         ],
     )
     runs.write_json(out, report)
-    out.with_suffix(".md").write_text(seed_eval.markdown(report) + "\n")
+    files.write_atomic(md, seed_eval.markdown(report) + "\n")
     print(seed_eval.markdown(report))
     print(f"wrote {out}")
     return 0

@@ -15,11 +15,17 @@ eval.json (the paper's accuracy table), summary.json (final metrics and the wall
 time at which the deterministic mean per-axis error first dropped below 5 mm and 1 mm)
 and plots/*.png.
 
-Bad input (unknown env, invalid config, unwritable folder, missing or corrupt checkpoint)
-fails before anything is compiled, with one line on stderr and exit status 2. Ctrl-C
-finishes the jitted call in flight, writes a checkpoint and exits with status 130
-(`--resume` continues; a second Ctrl-C exits at once); a folder with no checkpoint (a run
-killed before its first one) is started over by the same command.
+Bad input (unknown env, invalid config, unwritable folder, missing or corrupt checkpoint,
+an --out that is not a mara_mjx run folder, a run folder in use by another process, a
+checkpoint of another run or task) fails before anything is compiled, with one line on
+stderr and exit status 2; so does a write that fails (a full disk), naming the file.
+Ctrl-C or SIGTERM (a scheduler's stop) finishes the jitted call in flight, writes a
+checkpoint and exits with status 130 (Ctrl-C) or 143 (SIGTERM), as a shell reports a
+process those signals kill (`--resume` continues; a second signal exits at once);
+during the final evaluation they stop it, and `--resume` on the finished run evaluates
+again. A folder with no checkpoint (a run killed before its first one) is started over by
+the same command. What the run folder holds and which files the CLIs never replace:
+`mara_mjx.runs`.
 """
 
 # ruff: noqa: E402  (the clock starts before the heavy imports)
@@ -58,7 +64,7 @@ import jax
 from tqdm import tqdm
 
 import mara_mjx
-from mara_mjx import distributed, runs, seeds, sharding
+from mara_mjx import distributed, files, runs, seeds, sharding
 from mara_mjx.cli import (
     Section,
     UserError,
@@ -189,6 +195,22 @@ def _build(what: str, make: Callable[[], Any]) -> Any:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    runs.interrupt_on_sigterm()  # as Ctrl-C: a scheduler's stop is handled alike
+    try:
+        return _main(args)
+    except files.WriteError as e:
+        run = runs.run_dir_of(Path(e.filename)) if e.filename else None
+        again = f"--resume {run} continues the run" if run else "run the command again"
+        raise UserError(
+            f"cannot write {e.filename!r}: {e.strerror}; the files written before are whole "
+            f"(every write is atomic): free some space (or fix the folder), then {again}"
+        ) from e
+    except KeyboardInterrupt:
+        print(f"\n{PROG}: interrupted", file=sys.stderr)
+        return runs.exit_status()
+
+
+def _main(args: argparse.Namespace) -> int:
     configure_jax(args.compilation_cache, uses_real_driver(args, args.resume))
     launch = distributed.launch_from(args)
     seeds.check_launch(getattr(args, "run.seeds", 1), args.resume, launch is not None)
@@ -210,9 +232,18 @@ def main(argv: list[str] | None = None) -> int:
         host = seeds.Host(run_meta, finish, STOP, elapsed)
         return seeds.train(plan, env, trainer, host)
     main_process = distributed.is_main()  # the one that writes the run folder
-    if main_process:
-        runs.prepare_run_folder(plan.out, plan.checkpoint, plan.source_run)
+    lock = None  # the run folder's, held while this process writes there (mara_mjx.runs)
+    try:
+        if main_process:
+            lock = runs.prepare_run_folder(plan.out, plan.checkpoint, plan.source_run)
+        return _train(plan, env, trainer, main_process)
+    finally:
+        if lock is not None:
+            lock.release()
 
+
+def _train(plan: Plan, env: Any, trainer: Trainer, main_process: bool) -> int:
+    """Training and the final evaluation, in a prepared (and locked) run folder."""
     progress: dict[str, Any] = {"update": 0, "env_steps": 0, "time_s": 0.0, "milestones": {}}
     state = None
     if plan.checkpoint is not None:
@@ -235,21 +266,19 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{distributed.describe()}: joined; process 0 writes the run folder", flush=True)
 
     orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
-    log = (
-        logger.RunLogger(
-            plan.out,
-            logger.columns(orientation),
-            plan.run.tensorboard,
-            resume_update=progress["update"] if plan.checkpoint else None,
-            resume_env_steps=progress["env_steps"],
-        )
-        if main_process
-        else distributed.NoLog(logger.columns(orientation))
-    )
     milestones = logger.Milestones(progress.get("milestones"))
     evaluate_fn = make_evaluate(env, plan.eval) if main_process and plan.run.evaluate else None
+    log = distributed.NoLog(logger.columns(orientation))
     try:
-        with STOP:  # Ctrl-C: finish the call in flight, write a checkpoint, exit 130
+        with STOP:  # Ctrl-C or SIGTERM: finish the call in flight, write a checkpoint, exit
+            if main_process:  # (on resume it rewrites progress.csv: inside STOP, atomically)
+                log = logger.RunLogger(
+                    plan.out,
+                    logger.columns(orientation),
+                    plan.run.tensorboard,
+                    resume_update=progress["update"] if plan.checkpoint else None,
+                    resume_env_steps=progress["env_steps"],
+                )
             trainer = warmup.traced(trainer, state, plan.ppo.seed)  # warm: no tracing
             if state is None:  # compile run (and the evaluation) while init compiles
                 key = jax.random.key(plan.ppo.seed)
@@ -267,13 +296,21 @@ def main(argv: list[str] | None = None) -> int:
             state, last = train_loop(trainer, state, plan, meta, progress, log, milestones)
     except KeyboardInterrupt:
         print(f"\n{runs.interrupted_message(plan.out)}", file=sys.stderr)
-        return 130
+        return runs.exit_status()
     finally:
         log.close()
     state = distributed.gather(state)  # several processes: each gets the whole state
     try:
         if main_process:
             finish(env, state, plan, meta, last, milestones, evaluate_fn=evaluate_fn)
+    except KeyboardInterrupt:
+        print(
+            "\ninterrupted during the final evaluation; training is complete and its last "
+            f"checkpoint whole: --resume {plan.out} runs the evaluation (and writes the "
+            "plots and summary) again",
+            file=sys.stderr,
+        )
+        return runs.exit_status()
     finally:
         distributed.barrier("mara_mjx.train: finished")
     return 0
@@ -294,9 +331,9 @@ def run_meta(plan: Plan, env: Any) -> dict[str, Any]:
 
 
 STOP = runs.StopRequest(
-    "Ctrl-C: stopping after the jitted call in flight (the first one also compiles), then "
-    "writing a checkpoint; press Ctrl-C again to stop at once, losing the updates since "
-    "the last checkpoint"
+    "stopping after the jitted call in flight (the first one also compiles), then writing "
+    "a checkpoint; press Ctrl-C (or send SIGTERM) again to stop at once, losing the updates "
+    "since the last checkpoint"
 )
 
 

@@ -86,3 +86,76 @@ def test_a_name_the_file_system_allows_can_be_written(tmp_path):
     target = tmp_path / ("n" * 255)
     files.write_atomic(target, b"x")
     assert target.read_bytes() == b"x" and _leftovers(tmp_path) == []
+
+
+def test_a_failed_write_names_the_file_and_keeps_the_old_one(tmp_path, monkeypatch):
+    """A full disk (ENOSPC, injected: no small file system here) is a WriteError, an
+    OSError whose message names the target, and the old file stays whole."""
+    import errno
+
+    target = tmp_path / "eval.json"
+    target.write_text("old")
+
+    def full(f):
+        f.write(b"half")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    with pytest.raises(files.WriteError) as failed:
+        files.write_atomic(target, full)
+    assert failed.value.errno == errno.ENOSPC and isinstance(failed.value, OSError)
+    assert str(target) in str(failed.value) and "No space left" in str(failed.value)
+    assert target.read_text() == "old" and _leftovers(tmp_path) == []
+
+
+def test_remove_temporaries_deletes_only_the_writers_leftovers(tmp_path):
+    """What kill -9 leaves mid-write (`.<target>.<8 hex>.tmp`) goes; any other file, even
+    one ending in .tmp, stays."""
+    ours = [
+        ".ckpt_00000002.npz.0123abcd.tmp",
+        ".config.json.deadbeef.tmp",
+        ".write-test.00ff00ff.tmp",
+    ]
+    others = [".notes.tmp", "x.tmp", ".a.b.tmp", ".ckpt.npz.0123ABCD.tmp", "ckpt_00000001.npz"]
+    for name in ours + others:
+        (tmp_path / name).write_text("x")
+    only = files.remove_temporaries(tmp_path, ["config.json"])
+    assert [p.name for p in only] == [".config.json.deadbeef.tmp"]
+    removed = files.remove_temporaries(tmp_path)
+    assert sorted(p.name for p in removed) == sorted(set(ours) - {".config.json.deadbeef.tmp"})
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(others)
+    # the names write_atomic really makes are recognised
+    target = tmp_path / "summary.json"
+    assert files.temporary_target(files._temporary(target).name) == "summary.json"
+
+
+HOLD = r"""
+import sys, time
+from mara_mjx import files
+lock = files.FolderLock(sys.argv[1])
+assert lock.acquire()
+print("locked", flush=True)
+time.sleep(600)
+"""
+
+
+def test_a_folder_lock_is_exclusive_and_a_killed_holder_leaves_none(tmp_path):
+    import subprocess
+    import sys
+
+    holder = subprocess.Popen(
+        [sys.executable, "-c", HOLD, str(tmp_path)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        lock = files.FolderLock(tmp_path)
+        assert not lock.acquire()
+        assert lock.holder() == str(holder.pid)
+    finally:
+        holder.kill()  # kill -9: no clean-up runs
+        holder.wait()
+    assert (tmp_path / ".lock").exists()  # its file stays, its lock does not
+    with files.FolderLock(tmp_path) as lock:
+        assert lock.acquire() and lock.acquire()  # again while holding: True
+        assert not files.FolderLock(tmp_path).acquire()  # another holder: no
+    assert not (tmp_path / ".lock").exists()  # released: the file is gone
+    assert files.FolderLock(tmp_path).acquire()

@@ -6,7 +6,10 @@ with `QUICK` overrides for a CPU smoke run), its `run(config) -> records` and it
 spec. `main` (behind `python -m mara_mjx.benchmark STUDY`) generates each study's flags
 from its config (`mara_mjx.cli`), configures JAX, runs the study and writes
 `<study>.json` (settings, versions, device, the command, the records), `<study>.md` (the
-table) and `<study>.png` into `--out`.
+table) and `<study>.png` into `--out`. Those three are checked before the study runs: an
+existing file is replaced only if it is that study's earlier output (and a full run's
+never by a --quick one), or with --overwrite; never a checkpoint or a run folder's file
+(`mara_mjx.runs.check_output`).
 """
 
 from __future__ import annotations
@@ -25,8 +28,8 @@ from typing import Any, ClassVar, NamedTuple
 import jax
 import numpy as np
 
-from mara_mjx import files
-from mara_mjx.cli import configure_jax
+from mara_mjx import files, runs
+from mara_mjx.cli import UserError, configure_jax
 from mara_mjx.config import ConfigMixin, check_int
 from mara_mjx.plots import finish_figure
 
@@ -47,6 +50,9 @@ class BenchConfig(ConfigMixin):
     deterministic: bool = False
     """Deterministic XLA GPU ops (reproducible, about half the PPO speed); off by default,
     for speed; matmuls are float32 at HIGHEST precision either way."""
+    overwrite: bool = False
+    """Replace <study>.json, .md and .png in --out even if they are not this study's
+    earlier output (never a checkpoint or a run folder's own file)."""
 
     QUICK: ClassVar[dict[str, Any]] = {}
     POSITIVE: ClassVar[tuple[str, ...]] = ()
@@ -305,7 +311,19 @@ def resolve(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> Benc
             f"{out / (args.study + '.json')} holds a full (not --quick) run; a --quick "
             "smoke run does not replace it: choose another --out"
         )
+    ours = recorded_study(out / f"{args.study}.json", args.study)
+    for path in [out / f"{args.study}.{ext}" for ext in ("json", "md", "png")]:
+        try:
+            runs.check_output(path, f"{args.study} output", lambda _: ours, config.overwrite)
+        except UserError as e:
+            parser.error(str(e))
     return config
+
+
+def recorded_study(path: Path, study: str) -> bool:
+    """True if `path` is the JSON record of an earlier run of `study` (write_results)."""
+    record = runs.read_json(path)
+    return isinstance(record, dict) and record.get("study") == study and "records" in record
 
 
 def main(argv: Sequence[str] | None = None, description: str = "") -> None:

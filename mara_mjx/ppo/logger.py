@@ -4,11 +4,17 @@ One CSV row per PPO update (`progress.csv` in the run folder), with units in the
 names. `time_s` is wall-clock seconds since the command started (compile included; on a
 resumed run, the time of the run up to the checkpoint plus that of the new command); all
 updates of one jitted call share the call's time.
+
+A resumed run rewrites its progress.csv without the rows logged after its checkpoint:
+atomically (`mara_mjx.files.write_atomic`), so an interrupt or a crash mid-rewrite leaves
+the old file whole. A progress.csv without an `update` column cannot be continued
+(`check_progress` says so before anything is rewritten).
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 from collections.abc import Iterable
@@ -130,8 +136,9 @@ class RunLogger:
     """Appends rows to <run>/progress.csv and TensorBoard scalars to <run>/tb.
 
     `resume_update`: on a resumed run, rows after this update (logged after the
-    checkpoint by the interrupted command) are dropped first, so the CSV has each update
-    once."""
+    checkpoint by the interrupted command) and rows cut short by a crash are dropped
+    first, in one atomic rewrite, so the CSV has each update once. ProgressError if the
+    existing CSV cannot be continued (`check_progress`)."""
 
     def __init__(
         self,
@@ -144,10 +151,11 @@ class RunLogger:
         self.path = run_dir / "progress.csv"
         self.columns = columns
         if resume_update is not None and self.path.exists():
-            kept = [r for r in read_csv(self.path) if int(float(r["update"])) <= resume_update]
-            self._write(kept, mode="w")
+            check_progress(self.path)
+            kept = [r for r in read_csv(self.path) if _update(r) <= resume_update]
+            self._rewrite(kept)
         elif not self.path.exists() or resume_update is None:
-            self._write([], mode="w")
+            self._rewrite([])
         self.writer = None
         if tensorboard:
             from tensorboardX import SummaryWriter
@@ -155,15 +163,23 @@ class RunLogger:
             purge = resume_env_steps + 1 if resume_update is not None else None
             self.writer = SummaryWriter(str(run_dir / "tb"), purge_step=purge)
 
-    def _write(self, rows: list[dict[str, Any]], mode: str) -> None:
-        with open(self.path, mode, newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=self.columns, extrasaction="ignore")
-            if mode == "w":
-                writer.writeheader()
-            writer.writerows({c: r.get(c, math.nan) for c in self.columns} for r in rows)
+    def _write(self, f: Any, rows: list[dict[str, Any]], header: bool) -> None:
+        writer = csv.DictWriter(f, fieldnames=self.columns, extrasaction="ignore")
+        if header:
+            writer.writeheader()
+        writer.writerows({c: r.get(c, math.nan) for c in self.columns} for r in rows)
+
+    def _rewrite(self, rows: list[dict[str, Any]]) -> None:
+        """The header and `rows`, replacing the file atomically."""
+        from mara_mjx import files
+
+        text = io.StringIO(newline="")
+        self._write(text, rows, header=True)
+        files.write_atomic(self.path, text.getvalue())
 
     def log(self, rows: list[dict[str, float]]) -> None:
-        self._write(rows, mode="a")
+        with open(self.path, "a", newline="") as f:
+            self._write(f, rows, header=False)
         if self.writer is not None:
             for row in rows:
                 step = int(row["env_steps"])
@@ -186,6 +202,29 @@ def read_csv(path: str | os.PathLike) -> list[dict[str, str]]:
 
 class ProgressError(ValueError):
     """A missing, unreadable or incomplete progress.csv."""
+
+
+def _update(row: dict[str, Any]) -> float:
+    """A row's update number; infinity for a row cut short or not a number (dropped on
+    resume)."""
+    if None in row.values() or None in row:
+        return math.inf
+    try:
+        return float(row["update"])
+    except (TypeError, ValueError):
+        return math.inf
+
+
+def check_progress(path: str | os.PathLike) -> None:
+    """ProgressError unless the progress.csv `path` can be continued: readable, with an
+    `update` column."""
+    try:
+        with open(path, newline="") as f:
+            fields = csv.DictReader(f).fieldnames or []
+    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        raise ProgressError(f"cannot read {str(path)!r}: {e}") from e
+    if "update" not in fields:
+        raise ProgressError(f"{str(path)!r} has no 'update' column")
 
 
 def read_progress(
