@@ -1,8 +1,22 @@
 """A mara_mjx env as a brax environment, so brax's PPO can train on it.
 
+    from brax.training.agents.ppo import train as ppo
+    from mara_mjx.brax_env import make_brax_env
+
     env = make_brax_env("MARACollision")          # a brax.envs.base.Env
-    make_inference_fn, params, _ = brax.training.agents.ppo.train.train(
-        environment=env, episode_length=env.episode_length, num_envs=..., ...)
+    make_inference_fn, params, metrics = ppo.train(
+        environment=env, episode_length=env.episode_length, num_timesteps=...,
+        num_envs=..., batch_size=..., num_evals=...)   # brax's evaluator included
+
+Tested with brax 0.14.2 (the `brax` extra) and JAX 0.10 (tests/test_brax_train.py runs
+brax's `ppo.train`, evaluator on, on this adapter).
+
+* **JAX compatibility (applied on import).** brax 0.14.2's `ppo.train` calls
+  `jax.device_put_replicated`, which JAX 0.10 removed (accessing it raises
+  "jax.device_put_replicated is deprecated"; google/brax#671). Importing this module
+  gives `jax` JAX's documented drop-in replacement (`device_put_replicated` below,
+  docs.jax.dev migrate_pmap.html#drop-in-replacements) where JAX has none, for the whole
+  process; a JAX that still has its own keeps it.
 
 Choices (documented here because they differ from mara_mjx's own PPO and batching):
 
@@ -28,7 +42,10 @@ Choices (documented here because they differ from mara_mjx's own PPO and batchin
 * **Metrics.** brax's `EpisodeWrapper` sums every `State.metrics` entry over the
   episode into arrays of shape (N,), so metrics must be scalars per env. The adapter
   reports the per-step quantities only (the mara running totals would be summed
-  twice): see `METRICS`.
+  twice): see `METRICS`. The keys are fixed from reset on: `step` keeps every key of
+  the state it is given (brax's `EvalWrapper` adds `reward` to the reset state's
+  metrics, and the loops of brax's wrappers and evaluator need the same keys in and
+  out), updating the adapter's own.
 """
 
 from __future__ import annotations
@@ -37,6 +54,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from mara_mjx.envs.arm import _mjx
 
@@ -51,6 +69,19 @@ except ImportError as e:  # brax is an optional extra
     ) from e
 
 import mara_mjx
+
+
+def device_put_replicated(x: Any, devices: list[jax.Device]) -> Any:
+    """JAX's drop-in replacement for the removed `jax.device_put_replicated`: every leaf
+    of `x` stacked `len(devices)` times along a new leading axis, that axis sharded over
+    `devices` (one copy per device)."""
+    mesh = jax.sharding.Mesh(np.array(devices), ("x",))
+    sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("x"))
+    return jax.tree.map(lambda y: jax.device_put(jnp.stack([y] * len(devices)), sharding), x)
+
+
+if "device_put_replicated" not in vars(jax):  # JAX >= 0.10: brax 0.14.2's ppo.train needs it
+    jax.device_put_replicated = device_put_replicated
 
 # A horizon the mara env never reaches inside a brax episode (EnvConfig's bound is 2**30).
 NEVER = 2**30 - 1
@@ -130,7 +161,7 @@ class BraxMaraEnv(Env):
             obs=es.obs,
             reward=es.reward.astype(jnp.float32),
             done=es.done.astype(jnp.float32),
-            metrics=_metrics(es),
+            metrics={**state.metrics, **_metrics(es)},  # a wrapper's keys stay
         )
 
 

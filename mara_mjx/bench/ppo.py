@@ -43,13 +43,13 @@ from the end of the first call to the end of the run on the `t_run_s` clock, so 
 work between calls (taking the snapshots, brax's host loop) counts; brax's own
 `training/sps` (epoch time only) is kept as `brax_reported_sps_median`.
 
-brax 0.14.2 calls `jax.device_put_replicated`, which JAX 0.10 removed; `train_brax`
-provides JAX's documented drop-in replacement while brax trains (`brax_jax_compat`).
+brax 0.14.2 calls `jax.device_put_replicated`, which JAX 0.10 removed; importing
+`mara_mjx.brax_env` provides JAX's documented drop-in replacement (and imports
+mujoco.mjx quietly, before brax does), so this module imports it before brax.
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import functools
 import importlib.util
@@ -287,6 +287,10 @@ def brax_kwargs(config: PPOConfig, episode_length: int) -> dict[str, Any]:
     normalised observations (ours: +-`obs_clip`), and truncation handled by masking in
     GAE (ours: bootstrap from the final obs)."""
     import flax.linen as nn
+
+    import mara_mjx.brax_env  # noqa: F401  (before brax: quiet mujoco.mjx, JAX shim)
+
+    # isort: split
     from brax.training.agents.ppo import networks as ppo_networks
 
     if config.num_envs % config.num_minibatches:
@@ -323,27 +327,6 @@ def brax_kwargs(config: PPOConfig, episode_length: int) -> dict[str, Any]:
     }
 
 
-@contextlib.contextmanager
-def brax_jax_compat() -> Any:
-    """brax 0.14.2's `ppo.train` calls `jax.device_put_replicated`, which JAX removed in
-    0.10 (google/brax#671). While brax trains, provide JAX's documented drop-in
-    replacement (migrate_pmap.html#drop-in-replacements); afterwards remove it again."""
-    if "device_put_replicated" in vars(jax):
-        yield
-        return
-
-    def device_put_replicated(x: Any, devices: Any) -> Any:
-        mesh = jax.sharding.Mesh(np.array(devices), ("x",))
-        sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("x"))
-        return jax.tree.map(lambda y: jax.device_put(jnp.stack([y] * len(devices)), sharding), x)
-
-    jax.device_put_replicated = device_put_replicated
-    try:
-        yield
-    finally:
-        del jax.device_put_replicated
-
-
 def unmatched(config: PPOConfig) -> dict[str, Any]:
     """Our values of the PPOConfig fields brax has no equivalent for (see brax_kwargs)."""
     names = ("lr_schedule", "adam_eps", "relative_actions", "init_log_std", "log_std_floor")
@@ -362,9 +345,10 @@ def train_brax(
     """brax's PPO on `make_brax_env(task)`, `config.num_updates` updates of the same
     batch as ours, one epoch (= snapshot) per `updates_per_call` updates. Returns the run
     and act(params, obs) -> joint targets (the deterministic brax policy, mapped)."""
-    from brax.training.agents.ppo import train as brax_ppo
+    from mara_mjx.brax_env import make_brax_env  # before brax: see the module docstring
 
-    from mara_mjx.brax_env import make_brax_env
+    # isort: split
+    from brax.training.agents.ppo import train as brax_ppo
 
     if config.num_updates % updates_per_call:
         raise ValueError(
@@ -398,16 +382,15 @@ def train_brax(
                 {k: float(v) for k, v in metrics.items() if k.startswith("training/")}
             )
 
-        with brax_jax_compat():
-            brax_ppo.train(
-                environment=benv,
-                num_timesteps=total,
-                num_evals=calls + 1,
-                run_evals=False,
-                progress_fn=progress_fn,
-                policy_params_fn=policy_params_fn,
-                **brax_kwargs(config, episode_length),
-            )
+        brax_ppo.train(
+            environment=benv,
+            num_timesteps=total,
+            num_evals=calls + 1,
+            run_evals=False,
+            progress_fn=progress_fn,
+            policy_params_fn=policy_params_fn,
+            **brax_kwargs(config, episode_length),
+        )
         run.wall_s = clock.read()[0]
     bar.close()
     sps = [m["training/sps"] for m in brax_metrics[1:] if "training/sps" in m]
