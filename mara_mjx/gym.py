@@ -244,15 +244,22 @@ class MaraGymEnv(gymnasium.Env):
 
     def render(self) -> np.ndarray | None:
         """rgb_array: (height, width, 3) uint8 frame of the arm at the current joint
-        positions with the target marker at the episode's target. human: update the
-        viewer, return None. No render_mode: None."""
+        positions with the target marker at the episode's target (after a step that
+        collided, the pose it collided in, not the reset pose the env put the arm back
+        at: `mara_mjx.render.pose_reached`). human: update the viewer, return None. No
+        render_mode: None."""
         if self.render_mode is None:
             return None
         if self.state is None:
             raise gymnasium.error.ResetNeeded("call reset() before render()")
-        q, target_pos, target_quat = jax.device_get(
-            (self.state.q, self.state.params.target_pos, self.state.params.target_quat)
+        from mara_mjx.render import pose_reached
+
+        s = self.state
+        q, obs, collided, terminated, target_pos, target_quat = jax.device_get(
+            (s.q, s.obs, s.metrics["collided"], s.terminated)
+            + (s.params.target_pos, s.params.target_quat)
         )
+        q = pose_reached(q, obs, collided, terminated)  # not the post-collision reset pose
         if self.render_mode == "rgb_array":
             if self._renderer is None:  # after close()
                 from mara_mjx.render import ArmRenderer

@@ -14,6 +14,17 @@ TCP (red) and the target marker (green, with its z axis in blue):
   period (`control_dt`, 50 ms) of wall-clock time; closing the window stops.
 * `--video PATH` (.mp4 or .gif): frames rendered offscreen (EGL or OSMesa, see
   `mara_mjx.render`), one per env step, at `--fps` (default 1 / control_dt: real time).
+  An existing PATH is replaced only with `--overwrite`, and only if it is a video of
+  that format; the file appears whole when play ends (written beside it, then renamed).
+  .mp4 goes through the ffmpeg binary of imageio-ffmpeg, started without Python code
+  in the child (no os.fork warning from JAX; Ctrl-C does not reach ffmpeg, so the
+  frames shown so far are kept).
+
+A step that collides puts the arm back at the reset pose (the env's rule); its frame
+shows the pose it collided in (`mara_mjx.render.pose_reached`), so an episode that
+ends on such a step does not end on the reset pose. Progress goes to stdout as it
+happens: what is being built, the compile (the policy and env step compile at the first
+call: seconds on a GPU, up to minutes on a CPU), and a line per finished episode.
 
 `-r/--real_speed` runs the `real` driver (servo dynamics) instead of the checkpoint's;
 `-v/--velocity V` sets its servo speed (rad/s, in (0, 1.57]) and implies `-r`, as
@@ -21,16 +32,21 @@ gym-gazebo2's `-r`/`-v` flags did. The episodes are those of `python -m mara_mjx
 with the same flags: episode i resets from key split(key(seed), episodes)[i] with a joint
 noise of half-width `--noise` rad and stops at the first step where every axis of the
 position error is within `--tolerance_mm` (5 mm, the paper's run scripts; 0 runs to the
-horizon). At the end: each episode's final per-axis error (mm, and deg for the Orient
-tasks), then the accuracy table.
+horizon). Each episode's final per-axis error (mm, and deg for the Orient tasks) is
+printed when it ends, the accuracy table at the end.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
+import secrets
+import subprocess
 import sys
+import tempfile
 import time
+from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
@@ -117,6 +133,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--camera",
         help="a model camera (front, side); default a free camera on the workspace",
     )
+    video.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an existing --video file (only a video of the same format)",
+    )
     parser.add_argument(
         "--hold",
         type=float,
@@ -146,6 +167,17 @@ def check_video_args(args: argparse.Namespace) -> Path | None:
         )
     if path.is_dir():
         raise UserError(f"--video {str(path)!r} is a folder; give a file name ending in .mp4/.gif")
+    if path.exists() or path.is_symlink():
+        if not is_video(path):
+            raise UserError(
+                f"--video {str(path)!r} exists and is not a {path.suffix.lower()} video; "
+                "refusing to replace it (give another file name)"
+            )
+        if not args.overwrite:
+            raise UserError(
+                f"--video {str(path)!r} exists; pass --overwrite to replace it, or give "
+                "another file name"
+            )
     for name, value, limit in (("width", args.width, 1280), ("height", args.height, 720)):
         if not 1 <= value <= limit:
             raise UserError(f"--{name} {value} must be in [1, {limit}] pixels")
@@ -170,6 +202,23 @@ def check_video_args(args: argparse.Namespace) -> Path | None:
     return path
 
 
+VIDEO_MAGIC = {".mp4": (4, b"ftyp"), ".gif": (0, b"GIF8")}
+
+
+def is_video(path: Path) -> bool:
+    """Whether the regular file `path` starts like a video of its extension's format (an
+    MP4 'ftyp' box, a GIF header): what --overwrite may replace."""
+    offset, magic = VIDEO_MAGIC[path.suffix.lower()]
+    try:
+        if not path.is_file():
+            return False
+        with open(path, "rb") as f:
+            head = f.read(offset + len(magic))
+    except OSError:
+        return False
+    return head[offset:] == magic
+
+
 def env_flags(args: argparse.Namespace) -> dict[str, Any]:
     """The command line's env overrides of the checkpoint's env config; -v implies -r."""
     flags = env_overrides(args)
@@ -186,48 +235,161 @@ def env_flags(args: argparse.Namespace) -> dict[str, Any]:
 # ------------------------------------------------------------------- output
 
 
+def _temporary(path: Path) -> Path:
+    """A new empty file beside `path`, named as `files.write_atomic` names its temporary
+    files (so that `files.remove_temporaries` recognises one left by a killed process)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        tmp = path.with_name(f".{path.name[:200]}.{secrets.token_hex(4)}.tmp")
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            return tmp
+        except FileExistsError:
+            continue
+
+
 class VideoWriter:
-    """Frames (H, W, 3) uint8 into an .mp4 (H.264 through imageio-ffmpeg's ffmpeg,
-    streamed) or a .gif (Pillow; held in memory as palette images, 1 byte a pixel)."""
+    """Frames (H, W, 3) uint8 into an .mp4 (H.264 through imageio-ffmpeg's ffmpeg binary,
+    streamed) or a .gif (Pillow; held in memory as palette images, 1 byte a pixel).
 
-    def __init__(self, path: Path, fps: float, width: int, height: int):
-        self.path, self.fps, self.frames = path, fps, 0
+    The video is written beside `path` under a temporary name and renamed onto it at
+    `close()`; `abort()` removes it. `overwrite`: replace an existing `path` (otherwise
+    a file that appeared there meanwhile is kept and the video is not written).
+
+    ffmpeg is started with `process_group=0` instead of imageio-ffmpeg's
+    `preexec_fn=os.setpgrp` (both keep Ctrl-C, sent to the terminal's process group,
+    away from ffmpeg so that the frames so far are kept): a `preexec_fn` makes Python
+    fork and run Python code in the child, which is what JAX warns about ("os.fork() was
+    called ... JAX is multithreaded ... deadlock"); `process_group` is done by the C
+    child code, with no Python at-fork hooks.
+    """
+
+    def __init__(
+        self, path: Path, fps: float, width: int, height: int, overwrite: bool = False
+    ) -> None:
+        self.path, self.fps, self.frames, self.overwrite = Path(path), fps, 0, overwrite
+        self.width, self.height = width, height
         self._gif: list[Any] | None = None
-        self._mp4 = None
-        if path.suffix.lower() == ".gif":
+        self._proc: subprocess.Popen | None = None
+        self._tmp: Path | None = None
+        if self.path.suffix.lower() == ".gif":
             self._gif = []
-        else:
-            import imageio_ffmpeg
+            return
+        import imageio_ffmpeg
 
-            self._mp4 = imageio_ffmpeg.write_frames(
-                str(path), (width, height), fps=fps, codec="libx264", macro_block_size=2
+        self._tmp = _temporary(self.path)
+        cmd = [
+            imageio_ffmpeg.get_ffmpeg_exe(),
+            "-y", "-v", "warning",
+            "-f", "rawvideo", "-vcodec", "rawvideo", "-pix_fmt", "rgb24",
+            "-s", f"{width}x{height}", "-r", str(Fraction(fps).limit_denominator()),
+            "-i", "-",
+            "-an", "-vcodec", "libx264", "-pix_fmt", "yuv420p", "-crf", "25",
+            "-f", "mp4", str(self._tmp),
+        ]  # fmt: skip
+        self._log = tempfile.TemporaryFile()
+        try:
+            self._proc = subprocess.Popen(
+                cmd,
+                stdin=subprocess.PIPE,
+                stdout=subprocess.DEVNULL,
+                stderr=self._log,
+                close_fds=True,
+                process_group=0,
             )
-            self._mp4.send(None)
+        except BaseException:
+            self._tmp.unlink(missing_ok=True)
+            self._log.close()
+            raise
 
     def append(self, frame: np.ndarray) -> None:
+        if frame.shape != (self.height, self.width, 3):
+            raise ValueError(
+                f"frame of shape {frame.shape}, expected {(self.height, self.width, 3)}"
+            )
         if self._gif is not None:
             from PIL import Image
 
             self._gif.append(Image.fromarray(frame).quantize(colors=256))
         else:
-            self._mp4.send(np.ascontiguousarray(frame))
+            try:
+                self._proc.stdin.write(np.ascontiguousarray(frame, np.uint8).tobytes())
+            except BrokenPipeError as e:
+                raise RuntimeError(f"ffmpeg stopped: {self._ffmpeg_log()}") from e
         self.frames += 1
 
+    def _ffmpeg_log(self) -> str:
+        self._log.seek(0)
+        text = self._log.read().decode(errors="replace").strip()
+        return text[-2000:] or f"exit status {self._proc.poll()}"
+
     def close(self) -> None:
-        if self._mp4 is not None:
-            self._mp4.close()
-            self._mp4 = None
+        """Finish the file and move it onto `path`."""
+        if self._proc is not None:
+            proc, self._proc = self._proc, None
+            try:
+                proc.stdin.close()
+                if proc.wait() != 0:
+                    self._proc = proc
+                    raise RuntimeError(f"ffmpeg failed: {self._ffmpeg_log()}")
+                self._place(self._tmp)
+            finally:
+                self._proc = None
+                self._log.close()
+                self._tmp.unlink(missing_ok=True)
         if self._gif:
             first, *rest = self._gif
+            self._gif = None
             # GIF delays are whole hundredths of a second.
             delay = max(10, int(round(100.0 / self.fps)) * 10)
-            first.save(self.path, save_all=True, append_images=rest, duration=delay, loop=0)
-            self._gif = None
+            tmp = _temporary(self.path)
+            try:
+                with open(tmp, "wb") as f:
+                    first.save(
+                        f, format="GIF", save_all=True, append_images=rest, duration=delay, loop=0
+                    )
+                self._place(tmp)
+            finally:
+                tmp.unlink(missing_ok=True)
+
+    def _place(self, tmp: Path) -> None:
+        """Move the finished `tmp` onto `path`: replacing it with `overwrite`, else only
+        if nothing is there (a hard link fails on an existing name)."""
+        if self.overwrite:
+            os.replace(tmp, self.path)
+            return
+        try:
+            os.link(tmp, self.path)
+        except FileExistsError:
+            raise UserError(
+                f"{self.path} appeared while playing (another program?); it is kept and "
+                "the video is not written (--overwrite replaces it)"
+            ) from None
+        except OSError:  # no hard links on this file system
+            if self.path.exists():
+                raise UserError(
+                    f"{self.path} appeared while playing; the video is not written"
+                ) from None
+            os.replace(tmp, self.path)
+
+    def abort(self) -> None:
+        """Stop without writing `path` (an error): ffmpeg is stopped, its file removed."""
+        self._gif = None
+        if self._proc is not None:
+            self._proc.kill()
+            self._proc.wait()
+            self._proc = None
+            self._log.close()
+        if self._tmp is not None:
+            self._tmp.unlink(missing_ok=True)
 
 
-def episode_line(i: int, record: dict[str, Any], orientation: bool, tolerance_mm: float) -> str:
+def episode_line(
+    i: int, record: dict[str, Any], orientation: bool, tolerance_mm: float, n: int
+) -> str:
+    """'episode i+1/n: ...' (1-based, as a progress count)."""
     x, y, z = record["position_error_mm"]
-    line = f"episode {i}: {int(record['steps'])} steps"
+    line = f"episode {i + 1}/{n}: {int(record['steps'])} steps"
     if tolerance_mm > 0:
         line += f" ({'reached' if record['reached'] else 'did not reach'} {tolerance_mm:g} mm)"
     line += f", final error x {x:.2f} y {y:.2f} z {z:.2f} mm"
@@ -254,11 +416,23 @@ def main(argv: list[str] | None = None) -> int:
         raise UserError(f"invalid episode settings: {e}") from e
     env = runs.make_env(meta, **env_flags(args))
     name = meta["env_name"]
+    cfg = env.config
+    print(f"checkpoint: {path}")
+    print(
+        f"env: {name}, driver {cfg.driver!r}"
+        + (f", velocity {cfg.velocity:g} rad/s" if cfg.driver == "real" else "")
+        + f", control period {cfg.control_dt:g} s, horizon {env.max_episode_steps} steps",
+        flush=True,
+    )
 
     # The renderer or the viewer before anything compiles: a machine that cannot show
     # anything fails in a second.
     from mara_mjx import render
 
+    print(
+        "opening the MuJoCo viewer ..." if video_path is None else "starting offscreen GL ...",
+        flush=True,
+    )
     try:
         if video_path is None:
             viewer, renderer = render.Viewer(), None
@@ -268,29 +442,33 @@ def main(argv: list[str] | None = None) -> int:
     except (render.RenderError, ValueError) as e:
         raise UserError(str(e)) from e
 
-    cfg = env.config
-    print(f"checkpoint: {path}")
-    print(
-        f"env: {name}, driver {cfg.driver!r}"
-        + (f", velocity {cfg.velocity:g} rad/s" if cfg.driver == "real" else "")
-        + f", control period {cfg.control_dt:g} s, horizon {env.max_episode_steps} steps",
-        flush=True,
-    )
     fps = args.fps if args.fps is not None else 1.0 / cfg.control_dt
-    writer = VideoWriter(video_path, fps, args.width, args.height) if video_path else None
+    orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
+    writer = None
     try:
-        records = run_episodes(env, policy, config, viewer, renderer, writer, args.hold)
-    finally:
+        if video_path is not None:
+            writer = VideoWriter(video_path, fps, args.width, args.height, args.overwrite)
+        records = run_episodes(
+            env, policy, config, viewer, renderer, writer, args.hold, orientation
+        )
+    except KeyboardInterrupt:
+        if writer is not None:  # keep what was shown so far
+            writer.close()
+            print(f"interrupted: wrote {video_path} ({writer.frames} frames)", flush=True)
+        raise
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
+    else:
         if writer is not None:
             writer.close()
+    finally:
         if renderer is not None:
             renderer.close()
         if viewer is not None:
             viewer.close()
 
-    orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
-    for i, record in enumerate(records):
-        print(episode_line(i, record, orientation, config.tolerance_mm))
     if records:
         result = EvalResult(**{k: np.array([r[k] for r in records]) for k in records[0]})
         print(format_table(name, result, orientation, config))
@@ -301,15 +479,32 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def run_episodes(env, policy, config: EvalConfig, viewer, renderer, writer, hold: float):
+def run_episodes(
+    env,
+    policy,
+    config: EvalConfig,
+    viewer,
+    renderer,
+    writer,
+    hold: float,
+    orientation: bool = False,
+):
     """Play `config.episodes` episodes (evaluate's keys and stop rule); show every step
-    in the viewer (paced to control_dt of wall-clock time) or write it to the video.
-    Returns one record per finished episode (EvalResult's fields)."""
+    in the viewer (paced to control_dt of wall-clock time) or write it to the video,
+    printing progress and a line per finished episode. Returns one record per finished
+    episode (EvalResult's fields)."""
     import jax
+
+    from mara_mjx.render import pose_reached
 
     params, keys = episode_plan(env, config)  # evaluate's episodes, one at a time
     reset = jax.jit(env.reset)
-    step = jax.jit(lambda policy, state: env.step(state, policy(state.obs)))
+
+    @jax.jit
+    def step(policy, state):
+        state = env.step(state, policy(state.obs))
+        return state, state.metrics["collided"]
+
     dt = env.config.control_dt
     target = None  # the episode's: random-target tasks draw a new one at every reset
 
@@ -321,32 +516,47 @@ def run_episodes(env, policy, config: EvalConfig, viewer, renderer, writer, hold
         writer.append(frame)
         return frame
 
-    print("compiling the policy and the env step ...", flush=True)
-    jax.block_until_ready(step(policy, reset(keys[0], params)))
+    # The reset compiles in seconds (kinematics only): the first pose is shown while
+    # the policy and the step compile, which can take minutes on a CPU.
+    first = reset(keys[0], params)
+    target = jax.device_get((first.params.target_pos, first.params.target_quat))
+    if viewer is not None:
+        viewer.show(np.asarray(first.q), *target)
+    print(
+        "compiling the policy and the env step (the first call; up to minutes on a CPU) ...",
+        flush=True,
+    )
+    start = time.perf_counter()
+    jax.block_until_ready(step(policy, first))
+    print(f"compiled in {time.perf_counter() - start:.1f} s", flush=True)
 
     records = []
-    for key in keys:
+    n = len(keys)
+    for i, key in enumerate(keys):
         if viewer is not None and not viewer.running:
             break
         state = reset(key, params)
         target = jax.device_get((state.params.target_pos, state.params.target_quat))
-        show(np.asarray(state.q))
+        frame = show(np.asarray(state.q))
         tick = time.perf_counter()
         while True:
-            state = step(policy, state)
-            q, m, terminated, truncated = jax.device_get(
-                (state.q, state.metrics, state.terminated, state.truncated)
+            state, collided = step(policy, state)
+            q, obs, m, terminated, truncated = jax.device_get(
+                (state.q, state.obs, state.metrics, state.terminated, state.truncated)
             )
             if viewer is not None:  # pace to the control period in wall-clock time
                 tick = max(tick + dt, time.perf_counter())  # resync if behind
                 time.sleep(max(0.0, tick - time.perf_counter()))
-            frame = show(q)
+            # A collision put the arm back at the reset pose: show where it was.
+            frame = show(pose_reached(q, obs, collided, terminated))
             reached = bool(reached_tolerance(m, config))
             if reached or terminated or truncated:
                 break
             if viewer is not None and not viewer.running:
                 return records
-        records.append(jax.device_get(episode_record(state, reached)))
+        record = jax.device_get(episode_record(state, reached))
+        records.append(record)
+        print(episode_line(i, record, orientation, config.tolerance_mm, n), flush=True)
         if viewer is not None:
             time.sleep(hold)
         else:

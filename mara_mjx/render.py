@@ -148,6 +148,20 @@ def set_pose(
     mujoco.mj_forward(model, data)
 
 
+def pose_reached(
+    q: np.ndarray, obs: np.ndarray, collided: np.ndarray, terminated: np.ndarray
+) -> np.ndarray:
+    """The joint positions (6,) rad a step reached, for its picture: `q` (the state's),
+    except where the step collided or blew up and the env put the arm back at the reset
+    pose: there the pose the step's observation was taken at (its first 6 entries, the
+    mara observation layout; with randomisation the encoders' reading, off by their
+    offset and noise). Drawing the state's q there showed the arm snapping back to the
+    reset pose in the frame that ends an episode. Works batched ((N, 6), (N, obs), (N,))."""
+    q, obs = np.asarray(q), np.asarray(obs)
+    back = (np.asarray(collided) > 0) | np.asarray(terminated, bool)
+    return np.where(back[..., None], obs[..., : q.shape[-1]], q)
+
+
 def default_camera(camera: mujoco.MjvCamera | None = None) -> mujoco.MjvCamera:
     """The free camera on the workspace (written into `camera` if given)."""
     camera = mujoco.MjvCamera() if camera is None else camera

@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import gymnasium
@@ -26,11 +27,12 @@ from PIL import Image
 
 import mara_mjx
 from mara_mjx import play, render
-from mara_mjx.cli import run_cli
+from mara_mjx.cli import UserError, run_cli
 from mara_mjx.gym import MaraGymEnv, gym_id
 from mara_mjx.gym_vector import MaraVectorEnv
 from mara_mjx.ppo import PPOConfig, RunningStats
 from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo.config import EvalConfig
 from mara_mjx.ppo.networks import make_network
 
 REPO = Path(__file__).resolve().parents[1]
@@ -169,10 +171,16 @@ def test_renderer_frames_and_video_files(rgb_env, tmp_path):
 
     frames = [up, bent, up]
     mp4 = tmp_path / "clip.mp4"
-    writer = play.VideoWriter(mp4, fps=20.0, width=W, height=H)
-    for f in frames:
-        writer.append(f)
-    writer.close()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        writer = play.VideoWriter(mp4, fps=20.0, width=W, height=H)
+        for f in frames:
+            writer.append(f)
+        assert not mp4.exists()  # written beside it until close
+        writer.close()
+    # imageio-ffmpeg's preexec_fn made Python fork with its at-fork hooks: JAX's
+    # "os.fork() was called ... JAX is multithreaded ... deadlock" warning
+    assert not [w for w in caught if "fork" in str(w.message)], [str(w.message) for w in caught]
     import imageio_ffmpeg
 
     assert imageio_ffmpeg.count_frames_and_secs(str(mp4)) == (3, 0.15)
@@ -188,6 +196,69 @@ def test_renderer_frames_and_video_files(rgb_env, tmp_path):
     writer.close()
     durations = gif_durations(gif)
     assert sum(durations) == 150 and len(durations) == 3
+
+    # A file that appears at the path while playing is kept (the video is not written)
+    # unless --overwrite; an aborted video leaves nothing.
+    for suffix in (".mp4", ".gif"):
+        path = tmp_path / f"taken{suffix}"
+        writer = play.VideoWriter(path, fps=20.0, width=W, height=H)
+        writer.append(up)
+        path.write_text("someone else's")
+        with pytest.raises(UserError, match="appeared while playing"):
+            writer.close()
+        assert path.read_text() == "someone else's"
+        writer = play.VideoWriter(path, fps=20.0, width=W, height=H, overwrite=True)
+        writer.append(up)
+        writer.close()
+        assert play.is_video(path)
+        writer = play.VideoWriter(tmp_path / f"aborted{suffix}", fps=20.0, width=W, height=H)
+        writer.append(up)
+        writer.abort()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "clip.gif", "clip.mp4", "taken.gif", "taken.mp4"
+    ]  # fmt: skip
+
+
+def test_an_episode_that_ends_on_a_collision_ends_on_the_pose_it_collided_in(rgb_env):
+    """A colliding step puts the arm back at the reset pose; its frame (the last of an
+    episode that ends there, held for --hold) showed that reset pose (issue 34, item 16).
+    Frames show the pose the step reached, in play and in `render()`."""
+    env = mara_mjx.make("MARA", max_episode_steps=2)
+    fold = np.array([0.0, 2.0, 0.0, 0.0, 0.0, 0.0], np.float32)  # the shoulder into the table
+    shown, written = [], []
+
+    class Renderer:
+        def frame(self, q, target_pos, target_quat):
+            shown.append(np.asarray(q))
+            return np.full((1, 1, 3), len(shown), np.uint8)
+
+    class Writer:
+        fps = 20.0
+
+        def append(self, frame):
+            written.append(int(frame[0, 0, 0]))
+
+    policy = jax.tree_util.Partial(lambda obs: jnp.asarray(fold))
+    config = EvalConfig(episodes=1, noise=0.0)
+    records = play.run_episodes(env, policy, config, None, Renderer(), Writer(), hold=0.1)
+    assert records[0]["collisions"] == 2  # both steps fold into the table
+    np.testing.assert_array_equal(shown[0], np.zeros(6))  # the reset
+    for q in shown[1:]:
+        np.testing.assert_allclose(q, fold)  # not the reset pose the env put it back at
+    assert written == [1, 2, 3, 3, 3]  # the last frame held for 0.1 s at 20 fps
+
+    # render(): the same rule, on a state whose step collided (q back at the reset pose)
+    rgb_env.reset(seed=0)
+    state = rgb_env.state
+    with render.ArmRenderer(W, H) as renderer:
+        target = jax.device_get((state.params.target_pos, state.params.target_quat))
+        want = renderer.frame(fold, *target)
+    rgb_env.state = state.replace(
+        q=jnp.zeros(6),
+        obs=state.obs.at[:6].set(fold),
+        metrics={**state.metrics, "collided": jnp.float32(1.0)},
+    )
+    np.testing.assert_array_equal(rgb_env.render(), want)
 
 
 def gif_durations(path: Path) -> list[int]:
@@ -206,7 +277,7 @@ def gif_durations(path: Path) -> list[int]:
 
 
 def test_play_writes_a_video_as_a_user_runs_it(gl, run_dir, tmp_path):
-    out = tmp_path / "videos" / "play.gif"  # the folder is created
+    out = tmp_path / "videos" / "play.mp4"  # the folder is created
     args = [
         str(run_dir),
         "--video", str(out),
@@ -225,17 +296,30 @@ def test_play_writes_a_video_as_a_user_runs_it(gl, run_dir, tmp_path):
         timeout=300,
     )
     assert proc.returncode == 0, proc.stderr[-4000:]
+    # ffmpeg is started without a preexec_fn: no fork with Python at-fork hooks (JAX's
+    # warning), and no other noise (mujoco.mjx's "Failed to import warp")
+    assert "os.fork" not in proc.stderr and "Failed to import" not in proc.stdout, proc.stderr
     assert "driver 'train'" in proc.stdout and "horizon 3 steps" in proc.stdout
+    # Progress as it happens: the compile, then a line per episode before the table.
+    lines = proc.stdout.splitlines()
+    compiling = next(i for i, line in enumerate(lines) if line.startswith("compiling the policy"))
+    assert lines[compiling + 1].startswith("compiled in ")
+    episodes = [i for i, line in enumerate(lines) if line.startswith("episode ")]
+    assert [lines[i].split(":")[0] for i in episodes] == ["episode 1/2", "episode 2/2"]
+    table = next(i for i, line in enumerate(lines) if "| MARA (this policy) |" in line)
+    assert compiling < episodes[0] < episodes[1] < table
+    for i in episodes:
+        assert "3 steps" in lines[i] and "final error x " in lines[i], lines[i]
+        errors = lines[i].split("final error x ")[1].split(" mm")[0]
+        assert all(
+            np.isfinite(float(v)) for v in errors.replace("y ", "").replace("z ", "").split()
+        )
     # Per episode: the reset frame, 3 steps, then 2 frames (0.1 s at 20 fps) of hold.
     assert f"wrote {out} (12 frames at 20 fps)" in proc.stdout
-    assert sum(gif_durations(out)) == 12 * 50
-    lines = [line for line in proc.stdout.splitlines() if line.startswith("episode ")]
-    assert [line.split(":")[0] for line in lines] == ["episode 0", "episode 1"]
-    for line in lines:
-        assert "3 steps" in line and "final error x " in line, line
-        errors = line.split("final error x ")[1].split(" mm")[0].replace("y ", "").replace("z ", "")
-        assert all(np.isfinite(float(v)) for v in errors.split())
-    assert "| MARA (this policy) |" in proc.stdout
+    import imageio_ffmpeg
+
+    assert imageio_ffmpeg.count_frames_and_secs(str(out)) == (12, 0.6)
+    assert sorted(p.name for p in out.parent.iterdir()) == ["play.mp4"]  # no temporary left
 
 
 def test_bad_play_input_fails_fast_with_a_clear_message(
@@ -245,6 +329,11 @@ def test_bad_play_input_fails_fast_with_a_clear_message(
     garbage.write_bytes(b"PK\x03\x04 truncated zip")
     a_file = tmp_path / "file.txt"
     a_file.write_text("x")
+    not_a_video = tmp_path / "notes.mp4"
+    not_a_video.write_text("my notes")
+    a_gif = tmp_path / "old.gif"
+    Image.new("RGB", (4, 4)).save(a_gif)
+    before = {p: p.read_bytes() for p in (not_a_video, a_gif)}
     run = str(run_dir)
     gif = str(tmp_path / "out.gif")
     cases = [
@@ -260,6 +349,10 @@ def test_bad_play_input_fails_fast_with_a_clear_message(
         ([run, "--video", gif, "--episodes", "0"], "episodes"),
         ([run, "--video", gif, "--camera", "top"], "camera 'top' is not in the model"),
         ([run], "no display for the MuJoCo viewer"),  # DISPLAY unset below
+        # never a file play did not write: a foreign file even with --overwrite, a video
+        # only with it
+        ([run, "--video", str(not_a_video), "--overwrite"], "is not a .mp4 video; refusing"),
+        ([run, "--video", str(a_gif)], "exists; pass --overwrite to replace it"),
     ]
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
@@ -273,6 +366,7 @@ def test_bad_play_input_fails_fast_with_a_clear_message(
         ours = [n for n in compiled if "lambda" in n or "reset" in n or "step" in n]
         assert not ours, (argv, ours)
     assert not (tmp_path / "out.gif").exists()
+    assert {p: p.read_bytes() for p in before} == before
 
 
 def test_render_modes_and_missing_backends(monkeypatch):
