@@ -10,6 +10,8 @@ Tiny settings (one training epoch between two evaluations): the test is what com
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import jax
 import pytest
@@ -66,3 +68,22 @@ def test_metrics_keys_are_kept_from_reset_on():
     )
     x = jax.device_put_replicated({"a": jax.numpy.arange(3)}, jax.local_devices()[:1])
     assert x["a"].shape == (1, 3)
+
+
+QUIET = """
+from mara_mjx.bench.ppo import brax_kwargs
+from mara_mjx.ppo import PRESETS
+brax_kwargs(PRESETS["default"], 16)  # imports brax's PPO networks
+import mara_mjx.brax_env
+"""
+
+
+def test_our_brax_imports_are_quiet():
+    """brax imports mujoco.mjx, which prints "Failed to import warp" and "Failed to import
+    mujoco_warp" (its optional Warp backend) on stdout: where our code imports brax,
+    mujoco.mjx is imported quietly first (the benchmark's brax study printed both)."""
+    proc = subprocess.run(
+        [sys.executable, "-c", QUIET], capture_output=True, text=True, timeout=300
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "Failed to import" not in proc.stdout + proc.stderr, proc.stdout
