@@ -1,12 +1,15 @@
 """Rewards against the spec's reference values (section 4), arithmetic in comments."""
 
+import itertools
 import math
+import re
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import mara_mjx
 from mara_mjx import rewards
 from mara_mjx.rewards import RewardParams
 
@@ -88,3 +91,95 @@ def test_rewards_jit_and_broadcast():
     out = f(d)
     assert out.shape == (7,)
     assert np.all(np.isfinite(np.asarray(out)))
+
+
+# Issue 34 item 6: the hyperparameters' valid ranges (mara_mjx.rewards.RANGES).
+BAD_VALUES = [
+    ("delta", -1.0),  # a collision bonus
+    ("eta", -0.1),  # infinite penalty at the target
+    ("alpha", 1e300),  # inf in float32: every reward -1
+    ("alpha", 0.0),
+    ("alpha", 1e-8),  # 1 - exp(-alpha) = 0 in float32: NaN
+    ("done", 0.0),
+    ("done", 5.0),
+    ("beta", 0.0),
+    ("gamma", -0.5),  # O(pi) < 0
+    ("eta", 3.0),
+    ("beta", math.nan),
+    ("gamma", math.inf),
+    ("delta", -math.inf),
+]
+
+
+@pytest.mark.parametrize("name, value", BAD_VALUES)
+def test_reward_params_reject_values_outside_their_range(name, value):
+    expected = f"{name}={value!r} is outside its valid range {rewards.RANGES[name]}"
+    with pytest.raises(ValueError, match=re.escape(expected)):
+        RewardParams(**{name: value})
+    with pytest.raises(ValueError, match=re.escape(expected)):  # numpy values too
+        RewardParams(**{name: np.array([1.0, value])[1:]})
+
+
+def test_make_and_make_params_reject_bad_reward_values():
+    with pytest.raises(ValueError, match=r"delta=-1\.0 is outside its valid range \[0, 1e\+06\]"):
+        mara_mjx.make("MARACollision", delta=-1.0, check_target=False)
+    env = mara_mjx.make("MARA", check_target=False)
+    with pytest.raises(ValueError, match=r"alpha=1e\+300 is outside"):
+        env.make_params(alpha=1e300)
+    with pytest.raises(ValueError, match=r"eta=-1\.0 is outside"):  # a jax array in a config
+        env.config.replace(reward=RewardParams(eta=jnp.float32(-1.0)))
+
+
+def test_range_ends_keep_float32_rewards_finite_and_varying():
+    """Every corner of the ranges: finite rewards over d in [0, 2] m, theta in [0, pi],
+    and D still varies with d; just past alpha's lower end float32 gives NaN."""
+    d = jnp.linspace(0.0, 2.0, 201, dtype=jnp.float32)
+    theta = jnp.linspace(0.0, jnp.pi, 201, dtype=jnp.float32)
+    ends = {
+        n: (r.low if not r.low_open else r.low + 1e-6, r.high) for n, r in rewards.RANGES.items()
+    }
+    for corner in itertools.product(*ends.values()):
+        p = RewardParams(**dict(zip(ends, corner, strict=True)))
+        p32 = jax.tree.map(jnp.float32, p)
+        r = rewards.reward(d, theta, d > 1.0, p32, orientation=True, collision=True)
+        assert bool(jnp.all(jnp.isfinite(r))), p
+        dist = rewards.distance_term(d, p32.alpha, p32.done)
+        assert float(dist[0] - dist[100]) > 0.0, p  # d = 0 beats d = 1 m
+    past = rewards.distance_term(d, jnp.float32(1e-8), jnp.float32(1.0))
+    assert not bool(jnp.all(jnp.isfinite(past)))
+
+
+def test_traced_reward_params_are_not_checked():
+    """Tracers (jit, vmap) carry no value: construction inside them must not raise."""
+    batch = jax.tree.map(lambda x: jnp.full((2,), x), RewardParams())
+    out = jax.jit(jax.vmap(lambda p: rewards.distance_term(0.5, p.alpha, p.done)))(batch)
+    assert out.shape == (2,)
+
+
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--env.delta", "-1"], "delta=-1.0 is outside its valid range [0, 1e+06]"),
+        (["--alpha", "1e300"], "alpha=1e+300 is outside its valid range [0.001, 80]"),
+        (["--eta", "nan"], "eta=nan is outside its valid range [0, 1]"),
+    ],
+)
+def test_train_cli_rejects_bad_reward_flags(flags, message, tmp_path, capsys):
+    from mara_mjx import train as train_cli
+    from mara_mjx.cli import run_cli
+
+    argv = ["--env", "MARACollision", "--out", str(tmp_path / "run"), *flags]
+    assert run_cli(train_cli.main, train_cli.PROG, argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("mara_mjx.train: error:") and message in err, err
+    assert err.count("\n") == 1 and not (tmp_path / "run").exists()
+
+
+def test_train_reward_curriculum_start_must_be_in_range():
+    from mara_mjx.ppo import make_train
+    from mara_mjx.ppo.config import PPOConfig
+
+    env = mara_mjx.make("MARA", check_target=False)
+    config = PPOConfig(num_envs=2, num_steps=2, num_minibatches=1, total_timesteps=4)
+    with pytest.raises(ValueError, match=r"train_reward: .*alpha=0\.0 is outside"):
+        make_train(env, config.replace(train_reward="alpha=0"))

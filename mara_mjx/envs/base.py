@@ -30,7 +30,7 @@ from flax import struct
 from mara_mjx.config import check_vector, is_finite
 from mara_mjx.envs.arm import MAX_JOINT_SPEED
 from mara_mjx.envs.randomize import RandomizeConfig
-from mara_mjx.rewards import RewardParams
+from mara_mjx.rewards import RewardParams, check_reward_params
 
 
 @runtime_checkable
@@ -247,14 +247,7 @@ class EnvConfig:
             raise ValueError(
                 f"reward must be a mara_mjx.rewards.RewardParams, got {type(self.reward).__name__}"
             )
-        for f in dataclasses.fields(RewardParams):
-            v = getattr(self.reward, f.name)
-            if not is_finite(v):
-                raise ValueError(f"reward.{f.name}={v!r} must be a finite number")
-        if self.reward.done <= 0 or self.reward.alpha <= 0:
-            raise ValueError("reward.alpha and reward.done must be > 0")
-        if self.reward.gamma <= 0 or self.reward.beta <= 0:
-            raise ValueError("reward.beta and reward.gamma must be > 0")
+        check_reward_params(self.reward)  # also jax arrays, which RewardParams skips
 
     def replace(self, **overrides: Any) -> EnvConfig:
         """A new config with fields replaced; unknown names raise a clear error. Reward

@@ -54,7 +54,7 @@ from mara_mjx.ppo.networks import (
     make_network,
     update_stats,
 )
-from mara_mjx.rewards import collision_penalty
+from mara_mjx.rewards import check_reward_value, collision_penalty
 
 
 @struct.dataclass
@@ -182,6 +182,11 @@ def make_train(
     obs_size = benv.observation_size  # hidden_obs within it: checked by for_env
 
     curriculum = reward_curriculum(config.train_reward)
+    for name, value in curriculum.items():  # its start; the way to the env's own stays in
+        try:  # range (the ranges are intervals)
+            check_reward_value(name, value)
+        except ValueError as e:
+            raise ValueError(f"train_reward: {e}") from None
     until = max(1.0, config.train_reward_until * config.num_updates)
 
     def curriculum_frac(update: jax.Array) -> jax.Array:
