@@ -10,9 +10,9 @@ environments. How a process joins (flags; each also read from an environment var
     --process_id I            MARA_PROCESS_ID      this process, 0..N-1
     --distributed MODE        MARA_DISTRIBUTED     auto (default) or off
     --heartbeat_timeout S     MARA_HEARTBEAT_TIMEOUT  a silent process counts as dead after
-                                                   S seconds (JAX's default: 100)
+                                                   S seconds (default: 100)
     --join_timeout S          MARA_JOIN_TIMEOUT    wait this long for every process to join
-                                                   (JAX's default: 300)
+                                                   (default: 300)
 
 With `auto`, a process joins when any of the first three is given, or when SLURM runs it as
 one of several tasks (SLURM_NTASKS > 1): then `jax.distributed.initialize()` reads the
@@ -36,9 +36,19 @@ What the train CLI does differently when several processes take part:
 * A process that fails after that point leaves at once (`os._exit`), without JAX's
   shutdown barrier, which would wait for the others, blocked in a collective, until its
   own timeout. The others then fail within the heartbeat timeout, or at once where the
-  collective notices the closed connection (the gloo CPU collectives do); on GPUs, JAX
-  ends them with "Terminating process because the JAX distributed service detected fatal
-  errors".
+  collective notices the closed connection (the gloo CPU collectives do).
+* A missing peer ends every other process with one line on stderr and a non-zero exit
+  status within a bounded time: a process that never joins, after --join_timeout ("could
+  not join the run ... not all joined within S s", exit status 2); one that dies, is
+  killed or hangs once joined, after --heartbeat_timeout ("process i of N failed:
+  process j sent no sign of life for S s ...", exit status 1). Each process's `Watchdog`
+  thread posts a beat to the coordination service's key-value store every second and
+  reads the others'. JAX's own deadlines are set later (heartbeats: twice ours plus 10 s;
+  joining: ours plus 60 s), because JAX ends a process whose peer is missing with a C++
+  abort and stack trace ("Terminating process because the JAX distributed service
+  detected fatal errors"). Not covered: when process 0, which runs the coordination
+  service, dies, JAX's error polling aborts the others that way at once (exit by SIGABRT,
+  within a second), before any Python code can run.
 
 On CPU (the test suite) the collectives between processes are gloo's
 (`jax_cpu_collectives_implementation`).
@@ -46,11 +56,14 @@ On CPU (the test suite) the collectives between processes are gloo's
 
 from __future__ import annotations
 
+import atexit
 import hashlib
 import inspect
 import json
 import os
 import sys
+import threading
+import time
 import traceback
 from collections.abc import Callable
 from pathlib import Path
@@ -69,11 +82,14 @@ from mara_mjx.launch import (  # noqa: F401  (re-exported: the CLI's launch flag
 )
 
 _SLOTS, _DIGEST, _MESSAGE = 16, 8, 1024  # config sections, bytes per digest, error bytes
+DEFAULT_HEARTBEAT_TIMEOUT = 100  # s, JAX's default
+DEFAULT_JOIN_TIMEOUT = 300  # s, JAX's default
 
 
 class _State:
     active = False  # jax.distributed initialised by this module
     exchanged = False  # the processes have compared configs (or errors)
+    watchdog: Watchdog | None = None
 
 
 def initialize(launch: Launch | None) -> None:
@@ -94,25 +110,121 @@ def initialize(launch: Launch | None) -> None:
         "num_processes": launch.num_processes,
         "process_id": launch.process_id,
     }
-    for name, value in (
-        ("heartbeat_timeout_seconds", launch.heartbeat_timeout),
-        ("initialization_timeout", launch.join_timeout),
+    timeout = launch.heartbeat_timeout or DEFAULT_HEARTBEAT_TIMEOUT
+    join = launch.join_timeout or DEFAULT_JOIN_TIMEOUT
+    for name, value in (  # JAX's timeouts: after ours, which end the process cleanly
+        ("heartbeat_timeout_seconds", 2 * timeout + 10),
+        ("initialization_timeout", join + 60),
     ):
         if value is not None:
             if name not in accepted:
                 raise DistributedError(f"this JAX ({jax.__version__}) has no {name} option")
             kwargs[name] = value
     where = launch.coordinator or "the coordinator SLURM names"
+    failed = (
+        f"could not join the run at {where} as process {launch.process_id} of "
+        f"{launch.num_processes}: {{}} (did every process start, with the same "
+        "--coordinator and --num_processes? --join_timeout sets how long to wait)"
+    )
+    # JAX aborts the process (C++) when a process is missing at its deadline: ours is first
+    timer = threading.Timer(join, _not_joined, (failed.format(f"not all joined within {join} s"),))
+    timer.daemon = True
+    timer.start()
     try:
         jax.distributed.initialize(**kwargs)
     except Exception as e:  # JAX raises ValueError, RuntimeError or XlaRuntimeError
-        raise DistributedError(
-            f"could not join the run at {where} as process {launch.process_id} of "
-            f"{launch.num_processes}: {first_line(e)} (did every process start, with the same "
-            "--coordinator and --num_processes? --join_timeout sets how long to wait)"
-        ) from e
+        raise DistributedError(failed.format(first_line(e))) from e
+    finally:
+        timer.cancel()
     _State.active = True
     _State.exchanged = False
+    Watchdog(timeout).start()
+
+
+class Watchdog:
+    """A daemon thread that ends this process (one line on stderr, exit status 1) when
+    another process of the run stops beating for `timeout` seconds, or the coordinator
+    stops answering: every `interval` s it posts its beat count to the coordination
+    service's key-value store and reads the others'. Stopped at exit, before JAX's own
+    shutdown (atexit: last registered, first run), and after the run's last barrier."""
+
+    def __init__(self, timeout: float, interval: float = 1.0):
+        from jax._src import distributed as jax_distributed
+
+        state = jax_distributed.global_state  # (not jax.process_index: no backend yet)
+        self.client = state.client
+        self.index, self.count = state.process_id, state.num_processes or 1
+        self.timeout, self.interval = float(timeout), min(interval, timeout / 4)
+        self.stopped = threading.Event()
+        self.thread = threading.Thread(target=self._run, name="mara_mjx-watchdog", daemon=True)
+
+    def start(self) -> None:
+        if self.client is None or self.count < 2:
+            return
+        atexit.register(self.stop)
+        _State.watchdog = self
+        self.thread.start()
+
+    def stop(self) -> None:
+        self.stopped.set()
+        if self.thread.is_alive() and self.thread is not threading.current_thread():
+            self.thread.join(timeout=5)
+
+    def _run(self) -> None:
+        others = [i for i in range(self.count) if i != self.index]
+        seen = {i: (None, time.monotonic()) for i in others}
+        beat = 0
+        while not self.stopped.wait(self.interval):
+            beat += 1
+            try:
+                self.client.key_value_set(f"mara_mjx/beat/{self.index}", str(beat), True)
+                values = {i: self._beat_of(i) for i in others}
+            except Exception as e:
+                if self.stopped.is_set():
+                    return
+                self._lost(
+                    f"the coordinator (process 0) does not answer ({first_line(e)}): it died, "
+                    "was killed or its host is unreachable"
+                )
+                return
+            now = time.monotonic()
+            for i, value in values.items():
+                if value is not None and value != seen[i][0]:
+                    seen[i] = (value, now)
+                elif now - seen[i][1] > self.timeout and not self.stopped.is_set():
+                    self._lost(
+                        f"process {i} sent no sign of life for {self.timeout:g} s "
+                        "(--heartbeat_timeout): it died, was killed or hangs"
+                    )
+                    return
+
+    def _beat_of(self, i: int) -> str | None:
+        try:
+            return self.client.key_value_try_get(f"mara_mjx/beat/{i}")
+        except Exception as e:  # not posted yet: NOT_FOUND; anything else: the service
+            if "NOT_FOUND" in str(e) or "not found" in str(e).lower():
+                return None
+            raise
+
+    def _lost(self, why: str) -> None:
+        who = f"process {self.index} of {self.count}"  # (describe() may need the backend)
+        print(
+            f"{_PROG[0]}: error: {who} failed: {why}; its output says why. Stopping.",
+            file=sys.stderr,
+            flush=True,
+        )
+        sys.stdout.flush()
+        os._exit(1)
+
+
+_PROG = ["mara_mjx"]  # the CLI's name in messages (run_cli sets it)
+
+
+def _not_joined(message: str) -> None:
+    """The join deadline passed (a timer thread): one line, exit status 2, at once."""
+    print(f"{_PROG[0]}: error: {message}", file=sys.stderr, flush=True)
+    sys.stdout.flush()
+    os._exit(2)
 
 
 def active() -> bool:
@@ -265,12 +377,16 @@ def gather(tree: Any) -> Any:
     return jax.tree.map(one, tree)
 
 
-def barrier(name: str) -> None:
-    """Wait until every process gets here (a collective; nothing with one process)."""
+def barrier(name: str, last: bool = False) -> None:
+    """Wait until every process gets here (a collective; nothing with one process).
+    `last`: the run's last one, after which the processes may end at different times
+    (the watchdog stops)."""
     if _State.active:
         from jax.experimental import multihost_utils
 
         multihost_utils.sync_global_devices(name)
+        if last and _State.watchdog is not None:
+            _State.watchdog.stop()
 
 
 class NoLog:
@@ -298,6 +414,8 @@ def run_cli(
     * after it, the failing process leaves at once (os._exit, module docstring) and the
       others fail in their next collective or when its heartbeats stop.
     """
+
+    _PROG[0] = prog
 
     def guarded(argv: list[str] | None) -> int:
         try:

@@ -79,14 +79,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--heartbeat_timeout",
         type=int,
         metavar="SECONDS",
-        help="a process that stops answering for this long counts as dead and the others "
-        "stop (MARA_HEARTBEAT_TIMEOUT; default: JAX's, 100)",
+        help="a process that sends no sign of life for this long counts as dead and the "
+        "others stop, with one line naming it (MARA_HEARTBEAT_TIMEOUT; default: 100)",
     )
     group.add_argument(
         "--join_timeout",
         type=int,
         metavar="SECONDS",
-        help="how long to wait for every process to join (MARA_JOIN_TIMEOUT; default: JAX's, 300)",
+        help="how long to wait for every process to join; then every process that did stops "
+        "with one line (MARA_JOIN_TIMEOUT; default: 300)",
     )
 
 

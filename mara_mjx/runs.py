@@ -31,6 +31,7 @@ What the CLIs write, and what they never replace:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
@@ -39,7 +40,7 @@ import signal
 import subprocess
 import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -216,12 +217,21 @@ def exit_status(default: int = 130) -> int:
     return 128 + _STOP_SIGNAL[0] if _STOP_SIGNAL else default
 
 
-def interrupt_on_sigterm() -> None:
-    """From now on, SIGTERM (what a cluster scheduler sends) raises KeyboardInterrupt in
-    the main thread, as Ctrl-C does (outside `StopRequest`). Nothing outside the main
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """While active (a CLI's command), SIGTERM (what a cluster scheduler sends) raises
+    KeyboardInterrupt in the main thread, as Ctrl-C does (outside `StopRequest`); the
+    signals received count for `exit_status` from its start. Nothing outside the main
     thread."""
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _raise_interrupt)
+    _STOP_SIGNAL.clear()
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _raise_interrupt(signum, frame) -> None:

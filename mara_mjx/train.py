@@ -195,9 +195,9 @@ def _build(what: str, make: Callable[[], Any]) -> Any:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    runs.interrupt_on_sigterm()  # as Ctrl-C: a scheduler's stop is handled alike
     try:
-        return _main(args)
+        with runs.sigterm_as_interrupt():  # a scheduler's stop is handled as Ctrl-C
+            return _main(args)
     except files.WriteError as e:
         run = runs.run_dir_of(Path(e.filename)) if e.filename else None
         again = f"--resume {run} continues the run" if run else "run the command again"
@@ -312,7 +312,7 @@ def _train(plan: Plan, env: Any, trainer: Trainer, main_process: bool) -> int:
         )
         return runs.exit_status()
     finally:
-        distributed.barrier("mara_mjx.train: finished")
+        distributed.barrier("mara_mjx.train: finished", last=True)
     return 0
 
 

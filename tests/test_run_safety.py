@@ -393,3 +393,82 @@ def test_a_full_disk_is_a_one_line_error(tmp_path, monkeypatch, capsys):
     one_line_error(code, capsys.readouterr().err, evaluate_cli.PROG,
                    f"cannot write {str(out)!r}: No space left on device")  # fmt: skip
     assert not out.exists() and not [p for p in tmp_path.iterdir() if p.suffix == ".tmp"]
+
+
+# ------------------------------------------------------------------ a missing peer
+
+PEER = r"""
+import sys, time
+from mara_mjx import distributed
+from mara_mjx.launch import Launch
+
+
+def main(argv):
+    port, index, join = argv
+    launch = Launch(f"localhost:{port}", 2, int(index), heartbeat_timeout=3, join_timeout=int(join))
+    distributed.initialize(launch)
+    print("joined", flush=True)
+    time.sleep(300)
+    return 0
+
+
+sys.exit(distributed.run_cli(main, "mara_mjx.train", sys.argv[1:]))
+"""
+
+
+def _peer(port: int, index: int, join: int) -> subprocess.Popen:
+    import os
+
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONUNBUFFERED": "1"}
+    return subprocess.Popen(
+        [sys.executable, "-c", PEER, str(port), str(index), str(join)],
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def test_a_missing_peer_ends_the_others_with_one_line(tmp_path):
+    """A process that never joins, or dies once joined, ends the others within the join or
+    heartbeat timeout, with one line and a non-zero status (JAX alone aborted them with a
+    C++ stack trace: "Terminating process because the JAX distributed service detected
+    fatal errors"). Nothing is compiled: the processes only join and wait."""
+    import time
+
+    from test_distributed import free_port
+
+    alone = _peer(free_port(), 0, join=3)  # process 1 never starts
+    port = free_port()
+    killed = [_peer(port, i, join=120) for i in (0, 1)]
+    try:
+        _, err = alone.communicate(timeout=240)
+        assert alone.returncode == 2, err[-3000:]
+        assert err.strip().splitlines()[-1] == (
+            f"mara_mjx.train: error: could not join the run at localhost:{alone.args[3]} as "
+            "process 0 of 2: not all joined within 3 s (did every process start, with the same "
+            "--coordinator and --num_processes? --join_timeout sets how long to wait)"
+        ), err[-3000:]
+        assert "Terminating process" not in err
+
+        for p in killed:
+            assert p.stdout.readline().strip() == "joined", p.communicate()[1][-3000:]
+        killed[1].kill()
+        start = time.monotonic()
+        _, err = killed[0].communicate(timeout=120)
+        assert killed[0].returncode == 1, err[-3000:]
+        assert time.monotonic() - start < 30
+        assert "Terminating process" not in err and "Traceback" not in err, err[-3000:]
+        assert (
+            err.strip()
+            .splitlines()[-1]
+            .startswith(
+                "mara_mjx.train: error: process 0 of 2 failed: process 1 sent no sign of life for "
+                "3 s (--heartbeat_timeout)"
+            )
+        ), err[-3000:]
+    finally:
+        for p in (alone, *killed):
+            p.kill()
+            p.communicate()
