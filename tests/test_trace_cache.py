@@ -111,7 +111,7 @@ def test_a_damaged_file_is_exported_again_and_the_cache_can_be_off(
     (foreign,) = other.glob("*.bin")
     path.write_bytes(foreign.read_bytes())
     assert trace_cache.exported_run(t, shapes, tmp_path)[1].startswith("exported ")
-    assert "do not match the training state" in capsys.readouterr().err
+    assert "exported for another configuration" in capsys.readouterr().err
     # a folder that cannot be written: trains with the program all the same
     blocked = tmp_path / "a_file"
     blocked.write_text("")
@@ -122,3 +122,26 @@ def test_a_damaged_file_is_exported_again_and_the_cache_can_be_off(
     assert trace_cache.cache_folder(False, str(tmp_path)) is None
     monkeypatch.setenv(trace_cache.ENV_VAR, "0")
     assert trace_cache.cache_folder(True, str(tmp_path)) is None
+
+
+def test_swapped_entries_are_traced_again_not_trusted_by_name(env, tmp_path, capsys):
+    """Two configurations' files with the same shapes, swapped: each run notices that the
+    file under its name holds the other's program (its key material) and traces again."""
+    a = trainer(env)
+    b = trainer(env, CONFIG.replace(learning_rate=1e-3))  # same state shapes, other program
+    shapes = jax.eval_shape(a.init, jax.random.key(0))
+    path_a = tmp_path / f"{trace_cache.cache_key(a, shapes)}.bin"
+    path_b = tmp_path / f"{trace_cache.cache_key(b, shapes)}.bin"
+    assert path_a != path_b
+    for t in (a, b):
+        assert trace_cache.exported_run(t, shapes, tmp_path)[1].startswith("exported ")
+    blob_a, blob_b = path_a.read_bytes(), path_b.read_bytes()
+    path_a.write_bytes(blob_b)
+    path_b.write_bytes(blob_a)
+    capsys.readouterr()
+    run, status = trace_cache.exported_run(a, shapes, tmp_path)
+    assert status == f"exported {path_a}", status
+    err = capsys.readouterr().err
+    assert f"ignoring {path_a}" in err and "first at 'ppo'" in err, err
+    assert path_a.read_bytes() != blob_b  # replaced by a's own program
+    assert trace_cache.exported_run(a, shapes, tmp_path)[1] == f"loaded {path_a}"

@@ -21,8 +21,13 @@ the state's shapes and dtypes, the updates per call, the versions of python, jax
 jaxlib, mujoco, flax, optax and numpy, the backend and device kind, JAX's numeric settings, and
 the source of the installed mara_mjx package (an edited mara_mjx never loads a stale
 program). Something else that changes the program without changing any of these (a
-patched dependency, say) needs the folder deleted or MARA_MJX_TRACE_CACHE=0. A loaded
-file is checked against the state's shapes and dtypes. Only for one device (as
+patched dependency, say) needs the folder deleted or MARA_MJX_TRACE_CACHE=0.
+
+A file is not trusted by its name: it carries the full key material (the JSON the key
+hashes) in its header, and a loaded file whose material differs from the run's (a stale
+entry, one copied or renamed from another configuration's, a hash collision) is ignored
+with one line on stderr, traced again and replaced; its program's inputs and outputs are
+also checked against the state's shapes and dtypes. Only for one device (as
 ppo.warmup) and one seed; anything that fails falls back to plain `trainer.run` with one
 line on stderr, and a file that cannot be written costs only the next warm start.
 """
@@ -44,7 +49,7 @@ import jax.numpy as jnp
 from mara_mjx import files
 
 FOLDER = "mara_mjx_export"
-FORMAT = 1
+FORMAT = 2  # 2: the key material in the header
 
 
 @functools.lru_cache(maxsize=1)
@@ -75,6 +80,12 @@ def cache_folder(enabled: bool | None = None, folder: str | None = None) -> Path
 
 
 def cache_key(trainer: Any, state: Any) -> str:
+    """The file name's hash of `key_material`."""
+    return hashlib.sha256(key_material(trainer, state).encode()).hexdigest()[:32]
+
+
+def key_material(trainer: Any, state: Any) -> str:
+    """JSON of everything the traced program depends on (module docstring)."""
     from mara_mjx import runs  # here, not at the top: runs imports ppo.checkpoint
 
     leaves, treedef = jax.tree.flatten(state)
@@ -98,8 +109,7 @@ def cache_key(trainer: Any, state: Any) -> str:
         "updates_per_call": trainer.updates_per_call,
         "state": [str(treedef), [(tuple(x.shape), str(x.dtype)) for x in leaves]],
     }
-    text = json.dumps(parts, sort_keys=True, default=str)
-    return hashlib.sha256(text.encode()).hexdigest()[:32]
+    return json.dumps(parts, sort_keys=True, default=str)
 
 
 def env_fingerprint(env: Any) -> list:
@@ -128,17 +138,34 @@ def env_fingerprint(env: Any) -> list:
     ]
 
 
-def _pack(exported: Any, metric_keys: list[str]) -> bytes:
-    header = json.dumps({"format": FORMAT, "metrics": metric_keys}).encode()
+def _pack(exported: Any, metric_keys: list[str], material: str) -> bytes:
+    header = json.dumps({"format": FORMAT, "metrics": metric_keys, "key": material}).encode()
     return len(header).to_bytes(8, "little") + header + bytes(exported.serialize())
 
 
-def _unpack(blob: bytes) -> tuple[Any, list[str]]:
+def _unpack(blob: bytes, material: str) -> tuple[Any, list[str]]:
+    """(exported, metric keys); ValueError unless the header's format and key material
+    are this run's (compared before the program is deserialized)."""
     n = int.from_bytes(blob[:8], "little")
     header = json.loads(blob[8 : 8 + n])
     if header.get("format") != FORMAT:
         raise ValueError(f"format {header.get('format')!r}, expected {FORMAT}")
+    if header.get("key") != material:
+        raise ValueError(
+            "it was exported for another configuration (its key material differs from this "
+            f"run's{_first_difference(header.get('key'), material)}: a stale or renamed entry)"
+        )
     return jax.export.deserialize(bytearray(blob[8 + n :])), list(header["metrics"])
+
+
+def _first_difference(stored: Any, material: str) -> str:
+    """', first at <part>' naming the first top-level part of the key that differs."""
+    try:
+        old, new = json.loads(stored), json.loads(material)
+        part = next(k for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k))
+    except (TypeError, ValueError, AttributeError, StopIteration):
+        return ""
+    return f", first at {part!r}"
 
 
 def exported_run(trainer: Any, state: Any, folder: Path | None) -> tuple[Callable, str]:
@@ -152,10 +179,11 @@ def exported_run(trainer: Any, state: Any, folder: Path | None) -> tuple[Callabl
         return trainer.run, "off: several devices"
     try:
         leaves, treedef = jax.tree.flatten(state)
-        path = Path(folder) / f"{cache_key(trainer, state)}.bin"
+        material = key_material(trainer, state)
+        path = Path(folder) / f"{hashlib.sha256(material.encode()).hexdigest()[:32]}.bin"
         status = f"loaded {path}"
         try:
-            exported, metric_keys = _unpack(path.read_bytes())
+            exported, metric_keys = _unpack(path.read_bytes(), material)
             _check(exported, leaves, len(metric_keys))
         except FileNotFoundError:
             exported, metric_keys = None, []
@@ -177,7 +205,7 @@ def exported_run(trainer: Any, state: Any, folder: Path | None) -> tuple[Callabl
             exported = jax.export.export(jax.jit(flat_run))(shapes, n)
             status = f"exported {path}"
             try:
-                files.write_atomic(path, _pack(exported, metric_keys))
+                files.write_atomic(path, _pack(exported, metric_keys, material))
             except OSError as e:  # train with the program all the same
                 print(f"mara_mjx: cannot write {path}: {e}", file=sys.stderr)
                 status = f"exported (not saved: {e})"
