@@ -263,11 +263,13 @@ def read_progress(
 
 def save_plots(csv_path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:
     """PNG plots against env steps, as the paper's figures: mean reward, policy entropy,
-    and the deterministic mean per-axis error (log scale)."""
+    and the deterministic mean per-axis error (log scale); each written atomically."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    from mara_mjx import files
 
     progress = read_progress(csv_path)
     out_dir = Path(out_dir)
@@ -290,7 +292,7 @@ def save_plots(csv_path: str | os.PathLike, out_dir: str | os.PathLike) -> list[
         ax.grid(alpha=0.3)
         fig.tight_layout()
         path = out_dir / filename
-        fig.savefig(path)
+        files.write_atomic(path, lambda f, fig=fig: fig.savefig(f, format="png"))
         plt.close(fig)
         written.append(path)
     return written
