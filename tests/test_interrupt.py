@@ -91,3 +91,38 @@ def test_run_stopped_before_its_first_checkpoint_can_start_over(cli_env, tmp_pat
     assert restarted.returncode == 0, restarted.stderr[-3000:]
     assert "starting over" in restarted.stdout
     assert [int(r["update"]) for r in read_rows(killed / "progress.csv")] == list(range(1, 201))
+
+
+def test_sigterm_stops_like_ctrl_c_and_a_second_train_on_the_folder_is_refused(
+    cli_env, tmp_path, capsys
+):
+    """A scheduler's stop (SIGTERM) writes a checkpoint and exits 143 (128 + 15, as a
+    shell reports it), with the --resume line; while the run holds its folder, a second
+    train with the same --out stops with a one-line error (it used to interleave both runs'
+    rows and replace the other's checkpoints). The first run is frozen (SIGSTOP) while the
+    second one tries, so that the test does not depend on timing."""
+    from mara_mjx import train as train_cli
+    from mara_mjx.cli import run_cli
+
+    out = tmp_path / "run"
+    proc = _start_train(cli_env, *LONG, *QUIET, "--plots", "false", "--out", str(out))
+    for line in proc.stdout:  # printed just before the first call, which compiles
+        if "the first call compiles" in line:
+            break
+    proc.send_signal(signal.SIGSTOP)
+    try:
+        code = run_cli(train_cli.main, train_cli.PROG, [*LONG, *QUIET, "--out", str(out)])
+        err = capsys.readouterr().err
+        assert code == 2 and f"in use by another mara_mjx process (pid {proc.pid})" in err, err
+        proc.send_signal(signal.SIGTERM)
+    finally:
+        proc.send_signal(signal.SIGCONT)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 143, err[-3000:]
+    assert "SIGTERM: stopping after the jitted call in flight" in err, err[-3000:]
+    assert "Traceback" not in err and f"--resume {out}" in err
+    (newest,) = ckpt.list_checkpoints(out)
+    done = ckpt.load_checkpoint(newest)[1]["progress"]["update"]
+    assert done < 200
+    assert [int(r["update"]) for r in read_rows(out / "progress.csv")] == list(range(1, done + 1))
+    assert not (out / ".lock").exists()  # released on the way out

@@ -205,6 +205,9 @@ def _bad_train_inputs(tmp: Path, run: Path) -> list[tuple[list[str], str]]:
     arrays, meta = ckpt.load_checkpoint(run / CKPT1)
     arrays.pop("params/params/actor/Dense_0/kernel")
     stripped = ckpt.save_checkpoint(tmp / "stripped" / CKPT1, arrays, {**meta})
+    edited = tmp / "edited_csv"  # progress.csv without its update column
+    shutil.copytree(run, edited)
+    (edited / "progress.csv").write_text("step,reward\n1,0.5\n")
     tiny = list(TINY)
     return [
         (["--num_envs", "4"], "--env is required"),
@@ -218,6 +221,7 @@ def _bad_train_inputs(tmp: Path, run: Path) -> list[tuple[list[str], str]]:
         (["--resume", str(empty)], "has no checkpoints"),
         (["--resume", str(run), "--learning_rate", "1e-3"], "cannot change ppo.learning_rate"),
         (["--resume", str(stripped), "--out", str(tmp / "o")], "has no array"),
+        (["--resume", str(edited)], "has no 'update' column; it cannot be continued"),
     ]
 
 
@@ -533,3 +537,121 @@ def test_orient_task_default_trains_and_its_checkpoint_runs_without_the_training
     proc = run_module(users_env, "mara_mjx.export", str(out), str(exported))
     assert proc.returncode != 0 and "--preset default" in proc.stderr, proc.stderr[-2000:]
     assert not exported.exists()
+
+
+# ------------------------------------------------------------- what a run never loses
+
+
+def _finished_copy(trained, tmp_path) -> Path:
+    out, _ = trained
+    copy = tmp_path / "finished"
+    shutil.copytree(out, copy)
+    return copy
+
+
+def test_resume_rewrites_progress_csv_inside_the_stop_handler(trained, tmp_path, monkeypatch):
+    """Issue 34 item 3: --resume rewrites progress.csv (atomically, test_run_safety.py)
+    once Ctrl-C and SIGTERM only ask to stop, so that neither can cut the rewrite; and
+    the run folder's lock is given back however the command ends."""
+    import signal
+
+    copy = _finished_copy(trained, tmp_path)
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def logger_(*args, **kwargs):
+        seen.update({s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)})
+        raise Stop
+
+    monkeypatch.setattr(train_cli.logger, "RunLogger", logger_)
+    with pytest.raises(Stop):
+        train_cli.main(["--resume", str(copy), "--progress", "false"])
+    assert seen == {s: train_cli.STOP._handle for s in seen}, seen
+    assert not (copy / runs.LOCK).exists()
+
+
+def test_ctrl_c_during_the_final_evaluation_and_a_full_disk_are_one_line(
+    trained, tmp_path, monkeypatch, capsys, compiled
+):
+    """Issue 34 item 12, on --resume of a finished run (which only evaluates again):
+    Ctrl-C in the final evaluation exits 130 with what to do, no traceback; a full disk
+    (ENOSPC injected) when summary.json is written is one line naming the file. Nothing
+    compiles (the evaluation is interrupted before it runs)."""
+    import errno
+    import os
+
+    from mara_mjx import files
+
+    copy = _finished_copy(trained, tmp_path)
+
+    def ctrl_c(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train_cli, "evaluate", ctrl_c)
+    code = run_cli(train_cli.main, train_cli.PROG, ["--resume", str(copy), "--progress", "false"])
+    err = capsys.readouterr().err
+    assert code == 130, err
+    assert "interrupted during the final evaluation" in err and f"--resume {copy}" in err
+    assert "Traceback" not in err
+
+    class FullDisk:  # os, as mara_mjx.files sees it, with summary.json on a full disk
+        def __getattr__(self, name):
+            return getattr(os, name)
+
+        @staticmethod
+        def replace(source, target):
+            if Path(target).name == "summary.json":
+                raise OSError(errno.ENOSPC, "No space left on device")
+            os.replace(source, target)
+
+    before = (copy / "summary.json").read_bytes()
+    monkeypatch.setattr(files, "os", FullDisk())
+    argv = ["--resume", str(copy), "--progress", "false", "--evaluate", "false"]
+    code = run_cli(train_cli.main, train_cli.PROG, [*argv, "--plots", "false"])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert f"cannot write {str(copy / 'summary.json')!r}: No space left on device" in err
+    assert (copy / "summary.json").read_bytes() == before
+    assert not [n for n in compiled if n in ("jit(run)", "jit(init)", "jit(evaluate)")]
+
+
+FULL_DISK = r"""
+import errno, os, sys
+from pathlib import Path
+from mara_mjx import distributed, files, train
+
+class FullDisk:  # os, as mara_mjx.files sees it, with no room for a checkpoint
+    def __getattr__(self, name):
+        return getattr(os, name)
+
+    @staticmethod
+    def replace(source, target):
+        if Path(target).suffix == ".npz":
+            raise OSError(errno.ENOSPC, "No space left on device")
+        os.replace(source, target)
+
+files.os = FullDisk()
+sys.exit(distributed.run_cli(train.main, train.PROG, sys.argv[1:]))
+"""
+
+
+def test_a_full_disk_while_checkpointing_is_one_line_and_keeps_the_run(trained, cli_env, tmp_path):
+    """Issue 34 item 12: ENOSPC (injected) writing a checkpoint: one line naming the file
+    and how to continue, exit status 2, the earlier checkpoint intact, no temporary left."""
+    out, _ = trained
+    copy = tmp_path / "full"
+    shutil.copytree(out, copy)
+    (copy / CKPT2).unlink()
+    args = ["--resume", str(copy), "--progress", "false", "--evaluate", "false"]
+    proc = subprocess.run([sys.executable, "-c", FULL_DISK, *args], cwd=REPO, env=cli_env,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert f"cannot write {str(copy / CKPT2)!r}: No space left on device" in last, last
+    assert f"--resume {copy} continues the run" in last
+    assert ckpt.load_checkpoint(copy / CKPT1)[1]["progress"]["update"] == 1
+    assert not (copy / CKPT2).exists()
+    assert not [p for p in copy.rglob("*") if p.name.endswith(".tmp") or p.name == runs.LOCK]
