@@ -349,6 +349,9 @@ def main(argv: Sequence[str] | None = None, description: str = "") -> None:
         "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
     records = study.run(config)
-    paths = write_results(name, records, Path(config.out), meta)
+    try:
+        paths = write_results(name, records, Path(config.out), meta)
+    except files.WriteError as e:  # e.g. a full disk: one line, as bad input is
+        parser.exit(2, f"{parser.prog}: error: cannot write {e.filename!r}: {e.strerror}\n")
     print(paths[1].read_text())
     print("wrote " + ", ".join(str(p) for p in paths))
