@@ -17,8 +17,11 @@ pose is written into a `mujoco.MjData` of the same model (assets/mara.xml) and
 The offscreen GL context is made at the first `frame()` (or `open()`), not when the
 renderer is built: a process that never renders never has one. This matters beyond
 saving the work: a GL context made current in a process that later imports triton (as
-torch does when stable-baselines3 trains, and SB3's `make_vec_env` builds every env with
-render_mode="rgb_array") crashes that process with a segmentation fault.
+torch does when stable-baselines3 builds its PPO, and SB3's `make_vec_env` builds every
+env with render_mode="rgb_array") crashes that process with a segmentation fault
+(measured with Mesa's EGL, triton 3.9.0, torch 2.13.0; triton imported first, both
+work). So where triton is installed and not yet imported, it is imported before the
+first context (about 0.3 s): rendering before SB3's PPO exists works too.
 
 Offscreen GL backend (`gl_backend()`): a user-set MUJOCO_GL is used as given; otherwise
 EGL, then OSMesa, whichever first renders a test frame in a child process (a process
@@ -30,6 +33,7 @@ from __future__ import annotations
 
 import atexit
 import importlib
+import importlib.util
 import os
 import subprocess
 import sys
@@ -110,6 +114,17 @@ def _probe(name: str) -> str | None:
         return None
     lines = [line.strip() for line in proc.stderr.splitlines() if line.strip()]
     return lines[-1] if lines else f"exit status {proc.returncode}"
+
+
+def _import_triton_first() -> None:
+    """Import triton, if installed and not imported yet, before a GL context exists (see
+    the module docstring: the other order crashes the process)."""
+    if "triton" in sys.modules or importlib.util.find_spec("triton") is None:
+        return
+    try:
+        importlib.import_module("triton")
+    except Exception:  # a broken triton install: torch will report it itself
+        pass
 
 
 def _gl_context(backend: str, width: int, height: int):
@@ -227,6 +242,7 @@ class ArmRenderer:
         if self._context is not None:
             return self
         self.backend = gl_backend()
+        _import_triton_first()
         gl = _gl_context(self.backend, self.width, self.height)
         try:
             context = mujoco.MjrContext(self.model, mujoco.mjtFontScale.mjFONTSCALE_150)
@@ -338,6 +354,7 @@ class Viewer:
         self.model = load_model() if model is None else model
         self.data = mujoco.MjData(self.model)
         set_pose(self.model, self.data, np.zeros(self.model.nq))
+        _import_triton_first()
         try:
             self._handle = mujoco.viewer.launch_passive(
                 self.model, self.data, show_left_ui=False, show_right_ui=False

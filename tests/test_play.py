@@ -120,13 +120,26 @@ def test_rgb_array_frames_follow_the_pose_and_the_target(rgb_env):
     assert env._jit_reset._cache_size() == 1
 
 
-def test_no_gl_context_before_the_first_render(gl, monkeypatch):
+def test_no_gl_context_before_the_first_render(gl, monkeypatch, tmp_path):
     """stable-baselines3's make_vec_env builds every env with render_mode="rgb_array";
     a GL context made current at construction crashed the process when torch then
-    imported triton (issue 34, item 13). The context comes at the first render()."""
+    imported triton (issue 34, item 13). The context comes at the first render(), and
+    an installed triton is imported before it (a stand-in package here)."""
     made = []
     real = render._gl_context
-    monkeypatch.setattr(render, "_gl_context", lambda *a: made.append(a) or real(*a))
+
+    def gl_context(*args):
+        made.append(args)
+        assert "triton" in sys.modules  # imported before the first context
+        return real(*args)
+
+    monkeypatch.setattr(render, "_gl_context", gl_context)
+    if "triton" not in sys.modules:
+        (tmp_path / "triton").mkdir()
+        (tmp_path / "triton" / "__init__.py").write_text("")
+        monkeypatch.syspath_prepend(str(tmp_path))
+        monkeypatch.setitem(sys.modules, "triton", None)  # restored (removed) afterwards
+        del sys.modules["triton"]
     monkeypatch.setattr(render, "_probe", lambda name: made.append(("probe", name)))
     envs = [
         gymnasium.make(gym_id("MARA"), render_mode="rgb_array", width=W, height=H) for _ in range(2)
