@@ -35,7 +35,6 @@ import contextlib
 import json
 import os
 import platform
-import re
 import signal
 import subprocess
 import sys
@@ -96,7 +95,6 @@ GROUP_FILES = ("seeds.json", "seeds.md")
 """A multi-seed run folder's own files (mara_mjx.seeds)."""
 LOCK = ".lock"
 """The lock file of a run folder while a process trains it (files.FolderLock)."""
-_SEED_FOLDER = re.compile(r"^seed_\d+$")
 
 
 def read_json(path: str | os.PathLike) -> Any:
