@@ -200,7 +200,8 @@ def main(argv: list[str] | None = None) -> int:
             return _main(args)
     except files.WriteError as e:
         run = runs.run_dir_of(Path(e.filename)) if e.filename else None
-        again = f"--resume {run} continues the run" if run else "run the command again"
+        resumable = run is not None and ckpt.list_checkpoints(run)
+        again = f"--resume {run} continues the run" if resumable else "run the command again"
         raise UserError(
             f"cannot write {e.filename!r}: {e.strerror}; the files written before are whole "
             f"(every write is atomic): free some space (or fix the folder), then {again}"
