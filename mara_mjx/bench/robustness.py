@@ -47,6 +47,7 @@ dot per seed, failed seeds in red).
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import shlex
 import sys
@@ -104,8 +105,9 @@ class RobustnessConfig(BenchConfig):
     host without several GPUs: one at a time)."""
     """Limit on each train command (seconds)."""
     work_dir: str = ""
-    """Where a new folder receives the run folders and command logs, and is kept ("": a
-    temporary folder, deleted at the end)."""
+    """Folder that receives the run folders and command logs, and is kept: a rerun with
+    the same folder judges the runs whose same train command finished there instead of
+    training them again ("": a temporary folder, deleted at the end)."""
 
     QUICK: ClassVar[dict[str, Any]] = {
         "tasks": ("MARA",),
@@ -403,7 +405,7 @@ class Job(NamedTuple):
     preset: str  # the preset it trains (the CLI's choice resolved)
     out: Path  # its run folder
     log: Path  # its output
-    argv: list[str]
+    argv: tuple[str, ...]
 
     @property
     def command(self) -> str:
@@ -419,7 +421,7 @@ def make_jobs(config: RobustnessConfig, work: Path) -> list[Job]:
             slug = "-".join([task, *(w.strip("-").replace("=", "_") for w in shlex.split(recipe))])
             out = work / "runs" / slug
             preset = split_recipe(recipe)[0] or default_preset(task)
-            argv = train_argv(config, task, recipe, out)
+            argv = tuple(train_argv(config, task, recipe, out))
             jobs.append(Job(task, recipe, preset, out, work / f"{slug}.log", argv))
     return jobs
 
@@ -436,9 +438,11 @@ def gpu_slots(parallel: int) -> list[str | None]:
     return [str(i) for i in gpus[: parallel or len(gpus)]]
 
 
-def train_all(config: RobustnessConfig, jobs: list[Job]) -> dict[Job, dict[str, Any]]:
+def train_all(config: RobustnessConfig, jobs: list[Job]) -> list[dict[str, Any]]:
     """Run every job's train command, as many at a time as there are GPU slots (each on
-    its own GPU); per job its timing, or {"error": ...} if the command failed."""
+    its own GPU); per job its timing, or {"error": ...} if the command failed. A job whose
+    same command already finished in the work folder (a rerun with --work_dir) is not
+    trained again."""
     import queue
     from concurrent.futures import ThreadPoolExecutor
 
@@ -447,6 +451,10 @@ def train_all(config: RobustnessConfig, jobs: list[Job]) -> dict[Job, dict[str, 
         slots.put(slot)
 
     def train(job: Job) -> dict[str, Any]:
+        done = job.log.with_suffix(".done")  # the command and its timing, once it succeeded
+        if done.is_file() and json.loads(done.read_text()).get("command") == job.command:
+            print(f"reusing the finished run of {job.command}", flush=True)
+            return {**json.loads(done.read_text())["timing"], "reused": True}
         slot = slots.get()
         env = child_env()
         if slot is not None:
@@ -454,7 +462,8 @@ def train_all(config: RobustnessConfig, jobs: list[Job]) -> dict[Job, dict[str, 
         print(f"training {job.task} / {job.recipe} (GPU {slot or 'default'}): {job.command}",
               flush=True)  # fmt: skip
         try:
-            timing = launch(job.argv, env, job.log, config.timeout_s)
+            timing = launch(list(job.argv), env, job.log, config.timeout_s)
+            done.write_text(json.dumps({"command": job.command, "timing": timing}))
             print(f"  trained {job.task} / {job.recipe} in {timing['command_s']:.0f} s", flush=True)
             return timing
         except RuntimeError as e:
@@ -464,7 +473,7 @@ def train_all(config: RobustnessConfig, jobs: list[Job]) -> dict[Job, dict[str, 
             slots.put(slot)
 
     with ThreadPoolExecutor(max_workers=slots.qsize()) as pool:
-        return dict(zip(jobs, pool.map(train, jobs), strict=True))
+        return list(pool.map(train, jobs))
 
 
 def judge(config: RobustnessConfig, job: Job, timing: dict[str, Any]) -> list[dict[str, Any]]:
@@ -499,7 +508,8 @@ def judge(config: RobustnessConfig, job: Job, timing: dict[str, Any]) -> list[di
             "time_to_1mm_s": marks.get("1mm", {}).get("time_s"),
             "env_steps_to_1mm": marks.get("1mm", {}).get("env_steps"),
         })  # fmt: skip
-    summary = [{**r, **base, "train_s": timing["command_s"]} for r in summarise(records, config)]
+    trained = {"train_s": timing["command_s"], "train_reused": timing.get("reused", False)}
+    summary = [{**r, **base, **trained} for r in summarise(records, config)]
     _print(records, summary)
     return records + summary
 
@@ -519,7 +529,6 @@ def robustness_study(config: RobustnessConfig) -> list[dict[str, Any]]:
     if config.work_dir:
         work = Path(config.work_dir)
         work.mkdir(parents=True, exist_ok=True)
-        work = Path(tempfile.mkdtemp(prefix="robustness-", dir=work))
         return _run_all(config, work)
     with tempfile.TemporaryDirectory(prefix="mara-robustness-") as tmp:
         return _run_all(config, Path(tmp))
@@ -528,7 +537,7 @@ def robustness_study(config: RobustnessConfig) -> list[dict[str, Any]]:
 def _run_all(config: RobustnessConfig, work: Path) -> list[dict[str, Any]]:
     jobs = make_jobs(config, work)
     timings = train_all(config, jobs)
-    return [r for job in jobs for r in judge(config, job, timings[job])]
+    return [r for job, t in zip(jobs, timings, strict=True) for r in judge(config, job, t)]
 
 
 # ------------------------------------------------------------------ reporting
