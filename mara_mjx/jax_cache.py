@@ -22,11 +22,16 @@ delete it at any time to reclaim the space.
 
 Several processes may share the folder. JAX reads an entry as a whole file and, if
 it cannot be decompressed or loaded, warns and compiles instead. In a `jax.distributed`
-run only process 0 writes (JAX's rule). JAX 0.10's unlimited cache writes an entry in
-place (`Path.write_bytes`), so a process could read a half-written file (a warning and a
-recompile, not a wrong result); `atomic_writes` makes each write a temporary file renamed
-into place (`os.replace`, atomic on POSIX file systems), so readers see a whole entry or
-none.
+run only process 0 writes (JAX's rule). JAX's unlimited cache (`jax._src.lru_cache`,
+the same in jax 0.10.2 and 0.11) writes an entry in place (`Path.write_bytes`), so a
+process could read a half-written file, and a full disk or a killed process leaves a
+truncated entry that warns and recompiles on every later run; `atomic_writes` makes each
+write a temporary file renamed into place (`os.replace`, atomic on POSIX file systems),
+so readers see a whole entry or none, and a failed write leaves nothing (JAX then warns
+once and runs the program it compiled). JAX's cache path is `jax._src.path.Path`: etils'
+`epath.Path` where etils is installed (as here: flax pulls it in), else `pathlib.Path`;
+both are handled, by the local file name they stand for. A remote folder (`gs://...`,
+which only epath can write) keeps JAX's own write.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
 from mara_mjx import files
 
@@ -108,8 +114,8 @@ def atomic_writes() -> bool:
     jax_put = cls.put
 
     def put(self, key: str, value: bytes) -> None:
-        path = getattr(self, "path", None)
-        if getattr(self, "eviction_enabled", True) or not isinstance(path, Path) or not key:
+        path = local_path(getattr(self, "path", None))
+        if getattr(self, "eviction_enabled", True) or path is None or not key:
             return jax_put(self, key, value)
         final = path / f"{key}{suffix}"
         if final.exists():
@@ -119,3 +125,18 @@ def atomic_writes() -> bool:
     put._mara_mjx_atomic = True  # type: ignore[attr-defined]
     cls.put = put
     return True
+
+
+def local_path(path: Any) -> Path | None:
+    """The local folder a cache path names (a `pathlib.Path`, or an `epath.Path` of a
+    local folder: os.fspath gives its file name), else None (a remote `gs://` folder,
+    or no path)."""
+    if isinstance(path, Path):
+        return path
+    try:
+        text = os.fspath(path)
+    except TypeError:
+        return None
+    if not isinstance(text, str) or "://" in text:
+        return None
+    return Path(text)

@@ -110,3 +110,70 @@ def test_second_process_loads_from_the_default_folder_and_opt_out_does_not(clean
     assert second["hits"] >= 1 and second["y"] == first["y"]
     assert off["folder"] is None and off["hits"] == 0
     assert sorted(p.name for p in folder.iterdir()) == entries
+
+
+# A full disk while JAX writes an entry, simulated by RLIMIT_FSIZE (writes past LIMIT
+# bytes fail with EFBIG, SIGXFSZ ignored): then the same program written with room.
+FULL_DISK = """
+import json, os, resource, signal, sys
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+import jax, jax.numpy as jnp
+from jax._src import lru_cache, path as jax_path
+from mara_mjx.cli import configure_jax
+folder = configure_jax(sys.argv[1])
+limit = int(sys.argv[2])
+f = lambda x: jnp.tanh(x @ x.T).sum()
+x = jnp.ones((64, 64)).block_until_ready()
+listing = lambda: sorted((p.name, p.stat().st_size) for p in folder.iterdir())
+before = listing()  # jnp.ones' own programs
+soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+resource.setrlimit(resource.RLIMIT_FSIZE, (limit, hard))
+y = float(jax.jit(f)(x))
+full = [e for e in listing() if e not in before]
+resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+jax.clear_caches()
+y2 = float(jax.jit(f)(x))
+room = [e for e in listing() if e not in before]
+print(json.dumps({"y": y, "y2": y2, "full": full, "room": room,
+                  "path_type": type(jax_path.Path(str(folder))).__module__,
+                  "atomic": getattr(lru_cache.LRUCache.put, "_mara_mjx_atomic", False)}))
+"""
+
+
+def test_a_full_disk_leaves_no_truncated_entry(clean_env):
+    """JAX's own put (write_bytes in place) leaves LIMIT bytes of the entry under its
+    final name, which every later run reads, warns about and recompiles."""
+    env = {k: v for k, v in os.environ.items() if k not in VARS}
+    env.update(
+        JAX_PLATFORMS="cpu",
+        PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
+        JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
+        JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0",
+    )
+    limit = 2048
+    folder = clean_env / "cache"
+    proc = subprocess.run(
+        [sys.executable, "-c", FULL_DISK, str(folder), str(limit)],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out["atomic"] and out["y"] == out["y2"]
+    print(out["path_type"])  # etils.epath.* where etils is installed, else pathlib
+    assert out["full"] == [], out["full"]  # no entry, no temporary file
+    (entry, size), *rest = out["room"]
+    assert entry.endswith("-cache") and size > limit and not rest, out["room"]
+    assert "persistent compilation cache" in proc.stderr  # JAX warned of the failed write
+
+
+def test_local_path_of_the_path_types_jax_uses(tmp_path):
+    """jax._src.path.Path: pathlib.Path without etils, epath.Path with it (GCS too)."""
+    assert jax_cache.local_path(tmp_path) == tmp_path
+    assert jax_cache.local_path(None) is None
+    epath = pytest.importorskip("etils.epath")
+    assert jax_cache.local_path(epath.Path(str(tmp_path))) == tmp_path
+    assert jax_cache.local_path(epath.Path("gs://bucket/cache")) is None
