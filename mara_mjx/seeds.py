@@ -22,6 +22,11 @@ from the newest update all of them have a readable checkpoint of. `python -m
 mara_mjx.evaluate <out>` evaluates every seed's newest checkpoint (one vmapped program)
 and prints and writes the same summary. Not with several processes (jax.distributed) nor
 with the envs of one seed over several devices (--devices > 1).
+
+The folder follows `mara_mjx.runs`' rules: --out must be new, empty or a multi-seed
+run's folder; training locks it and every seed's folder; seeds.json is written first, so
+a run killed early is still known as one (and started over by the same command). A
+seeds.json whose seeds are not distinct ints >= 0 is refused with one line.
 """
 
 from __future__ import annotations
@@ -45,6 +50,7 @@ from mara_mjx import files, runs, sharding
 from mara_mjx.cli import UserError
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import logger, seed_eval
+from mara_mjx.ppo.divergence import check_finite
 from mara_mjx.ppo.policy import make_policy, policy_from_checkpoint
 from mara_mjx.ppo.train import make_seed_trainer, take_seed
 
@@ -310,6 +316,7 @@ def _loop(st: Any, state: Any, lanes: list[Lane], plan: Any, host: Host) -> Any:
         start = time.monotonic()
         state, metrics = st.run(state, n)
         metrics = jax.device_get(metrics)
+        check_finite(state, metrics, done, n)  # a diverged seed stops all, nothing saved
         rate = n * per_update / (time.monotonic() - start)  # env steps/s of each seed
         for i, lane in enumerate(lanes):
             now = host.elapsed(lane.progress["time_s"], resumed)
