@@ -81,6 +81,7 @@ from mara_mjx.envs.randomize import RandomizeConfig
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import logger, warmup
 from mara_mjx.ppo.config import PRESETS, EvalConfig, PPOConfig, RunConfig, default_preset
+from mara_mjx.ppo.divergence import check_finite
 from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table, make_evaluate
 from mara_mjx.ppo.policy import make_policy
 from mara_mjx.ppo.train import Trainer, make_train, num_parameters
@@ -366,6 +367,7 @@ def train_loop(
         start = time.monotonic()
         state, metrics = trainer.run(state, n)
         metrics = jax.device_get(metrics)
+        check_finite(state, metrics, done, n)  # a diverged run stops here, nothing saved
         seconds = time.monotonic() - start
         now = elapsed(time_before, resumed)
         rows = logger.rows_from_metrics(metrics, done, per_update, now, n * per_update / seconds)

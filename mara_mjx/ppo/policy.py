@@ -142,7 +142,11 @@ def load_policy(path: str | os.PathLike) -> Policy:
 
 
 def policy_from_checkpoint(arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> Policy:
-    """The deterministic `Policy` from `mara_mjx.ppo.checkpoint.load_checkpoint` output."""
+    """The deterministic `Policy` from `mara_mjx.ppo.checkpoint.load_checkpoint` output.
+    CheckpointError where its parameters or observation statistics are not finite (a
+    diverged run: its NaN actions would be replaced by holding the pose, and an
+    evaluation would print a normal-looking table). Every CLI that loads a policy
+    (evaluate, play, export, a --seeds evaluation) comes through here."""
     try:
         config = PPOConfig.from_dict(meta["ppo"])
     except (TypeError, ValueError) as e:
@@ -154,8 +158,27 @@ def policy_from_checkpoint(arrays: dict[str, np.ndarray], meta: dict[str, Any]) 
         arrays = {
             k: (v[0] if k.startswith(("params/", "obs_stats/")) else v) for k, v in arrays.items()
         }
+    check_finite_arrays(arrays)
     params = arrays_to_state(arrays, template, prefix="params/")
     stats = None
     if config.normalize_obs:
         stats = arrays_to_state(arrays, RunningStats.create(meta["observation_size"]), "obs_stats/")
     return Policy(params=params, obs_stats=stats, config=config, action_size=meta["action_size"])
+
+
+def check_finite_arrays(arrays: dict[str, np.ndarray]) -> None:
+    """CheckpointError naming the policy arrays (params/..., obs_stats/...) of a
+    checkpoint that hold NaN or inf."""
+    bad = [
+        name
+        for name, value in arrays.items()
+        if name.startswith(("params/", "obs_stats/"))
+        and np.issubdtype(np.asarray(value).dtype, np.inexact)
+        and not np.all(np.isfinite(value))
+    ]
+    if bad:
+        shown = ", ".join(bad[:3]) + (f" and {len(bad) - 3} more" if len(bad) > 3 else "")
+        raise CheckpointError(
+            f"the checkpoint's policy is not finite (NaN or inf in {shown}): the run diverged; "
+            "use an earlier checkpoint of the run"
+        )
