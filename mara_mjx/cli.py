@@ -221,6 +221,21 @@ def run_cli(main: typing.Callable[[list[str] | None], int], prog: str, argv=None
     except (UserError, CheckpointError) as e:
         print(f"{prog}: error: {e}", file=sys.stderr)
         return 2
+    except (MemoryError, RuntimeError) as e:  # JaxRuntimeError is a RuntimeError
+        if not is_out_of_memory(e):
+            raise
+        what = (str(e).strip().splitlines() or [type(e).__name__])[0]
+        print(
+            f"{prog}: error: out of memory: {what} (fewer --num_envs, --num_steps or "
+            "--episodes need less)",
+            file=sys.stderr,
+        )
+        return 1
+
+
+def is_out_of_memory(error: BaseException) -> bool:
+    """Python's MemoryError, or XLA's RESOURCE_EXHAUSTED (host or device memory)."""
+    return isinstance(error, MemoryError) or "RESOURCE_EXHAUSTED" in str(error)[:200]
 
 
 def env_overrides(namespace: argparse.Namespace) -> dict[str, Any]:

@@ -17,6 +17,7 @@ import csv
 import io
 import math
 import os
+import sys
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -190,8 +191,18 @@ class RunLogger:
             self.writer.flush()
 
     def close(self) -> None:
-        if self.writer is not None:
-            self.writer.close()
+        writer, self.writer = self.writer, None
+        if writer is None:
+            return
+        try:
+            writer.close()
+        except RuntimeError as e:  # "can't start new thread": memory exhausted (NOTES, "hang")
+            # tensorboardX's writer thread stops on a signal sent through a queue whose
+            # feeder thread could not start; its atexit cleanup would then wait for it
+            # forever at exit: mark its files closed (the unflushed events are lost)
+            for file_writer in (getattr(writer, "all_writers", None) or {}).values():
+                file_writer.event_writer._closed = True
+            print(f"mara_mjx: TensorBoard events not flushed: {e}", file=sys.stderr)
 
 
 def read_csv(path: str | os.PathLike) -> list[dict[str, str]]:
