@@ -196,7 +196,7 @@ class RunLogger:
             return
         try:
             writer.close()
-        except RuntimeError as e:  # "can't start new thread": memory exhausted (NOTES, "hang")
+        except RuntimeError as e:  # "can't start new thread": memory exhausted (NOTES 31)
             # tensorboardX's writer thread stops on a signal sent through a queue whose
             # feeder thread could not start; its atexit cleanup would then wait for it
             # forever at exit: mark its files closed (the unflushed events are lost)
