@@ -324,7 +324,10 @@ class VideoWriter:
         return text[-2000:] or f"exit status {self._proc.poll()}"
 
     def close(self) -> None:
-        """Finish the file and move it onto `path`."""
+        """Finish the file and move it onto `path` (no frames: nothing is written)."""
+        if self.frames == 0:
+            self.abort()
+            return
         if self._proc is not None:
             proc, self._proc = self._proc, None
             try:
@@ -451,11 +454,13 @@ def main(argv: list[str] | None = None) -> int:
         records = run_episodes(
             env, policy, config, viewer, renderer, writer, args.hold, orientation
         )
-    except KeyboardInterrupt:
-        if writer is not None:  # keep what was shown so far
+    except KeyboardInterrupt:  # Ctrl-C: keep the video shown so far, exit as SIGINT does
+        if writer is not None:
             writer.close()
-            print(f"interrupted: wrote {video_path} ({writer.frames} frames)", flush=True)
-        raise
+            if writer.frames:
+                print(f"interrupted: wrote {video_path} ({writer.frames} frames)", flush=True)
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
     except BaseException:
         if writer is not None:
             writer.abort()

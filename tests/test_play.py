@@ -405,3 +405,37 @@ def test_render_modes_and_missing_backends(monkeypatch):
         render.gl_backend()
     failures["osmesa"] = None
     assert render.gl_backend() == "osmesa" and os.environ["MUJOCO_GL"] == "osmesa"
+
+
+def test_ctrl_c_keeps_the_video_shown_so_far(run_dir, tmp_path, monkeypatch, capsys):
+    """Ctrl-C while playing: the frames so far are written (ffmpeg, in a process group of
+    its own, does not get the signal), no temporary file is left, exit status 130."""
+    frames = []
+
+    class Renderer:  # the 5th frame is where the user presses Ctrl-C
+        def __init__(self, *args):
+            pass
+
+        def open(self):
+            return self
+
+        def frame(self, q, target_pos, target_quat):
+            if len(frames) == 4:
+                raise KeyboardInterrupt
+            frames.append(q)
+            return np.full((H, W, 3), 40 * len(frames), np.uint8)
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(render, "ArmRenderer", Renderer)
+    out = tmp_path / "stopped.mp4"
+    argv = [str(run_dir), "--video", str(out), "--width", str(W), "--height", str(H)]
+    code = run_cli(play.main, play.PROG, [*argv, "--max_episode_steps", "3", "--hold", "0"])
+    captured = capsys.readouterr()
+    assert code == 130 and "interrupted" in captured.err, captured.err
+    assert f"interrupted: wrote {out} (4 frames)" in captured.out
+    import imageio_ffmpeg
+
+    assert imageio_ffmpeg.count_frames_and_secs(str(out))[0] == 4
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["stopped.mp4"]
