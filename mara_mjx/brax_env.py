@@ -1,7 +1,7 @@
 """A mara_mjx env as a brax environment, so brax's PPO can train on it.
 
+    from mara_mjx.brax_env import make_brax_env   # first: JAX shim, quiet mujoco.mjx
     from brax.training.agents.ppo import train as ppo
-    from mara_mjx.brax_env import make_brax_env
 
     env = make_brax_env("MARACollision")          # a brax.envs.base.Env
     make_inference_fn, params, metrics = ppo.train(
