@@ -138,19 +138,19 @@ def env_fingerprint(env: Any) -> list:
     ]
 
 
-def _pack(exported: Any, metric_keys: list[str], material: str) -> bytes:
+def _pack(exported: Any, metric_keys: list[str], material: str = "") -> bytes:
     header = json.dumps({"format": FORMAT, "metrics": metric_keys, "key": material}).encode()
     return len(header).to_bytes(8, "little") + header + bytes(exported.serialize())
 
 
-def _unpack(blob: bytes, material: str) -> tuple[Any, list[str]]:
-    """(exported, metric keys); ValueError unless the header's format and key material
-    are this run's (compared before the program is deserialized)."""
+def _unpack(blob: bytes, material: str | None = None) -> tuple[Any, list[str]]:
+    """(exported, metric keys); ValueError unless the header's format and, unless None,
+    key material are this run's (compared before the program is deserialized)."""
     n = int.from_bytes(blob[:8], "little")
     header = json.loads(blob[8 : 8 + n])
     if header.get("format") != FORMAT:
         raise ValueError(f"format {header.get('format')!r}, expected {FORMAT}")
-    if header.get("key") != material:
+    if material is not None and header.get("key") != material:
         raise ValueError(
             "it was exported for another configuration (its key material differs from this "
             f"run's{_first_difference(header.get('key'), material)}: a stale or renamed entry)"
