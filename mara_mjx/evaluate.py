@@ -29,6 +29,7 @@ Where the report goes is checked before anything runs: --json must name a file, 
 folder, a checkpoint or a file of a run folder (config.json, progress.csv, eval.json, ...);
 an existing file is replaced only if it is an earlier report of this command (re-running
 an evaluation replaces its report), or with --overwrite (`mara_mjx.runs.check_output`).
+Ctrl-C (or SIGTERM) stops it with one line and exit status 130 (143), writing nothing.
 """
 
 from __future__ import annotations
@@ -98,9 +99,13 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return _main(args)
+        with runs.sigterm_as_interrupt():
+            return _main(args)
     except files.WriteError as e:
         raise UserError(f"cannot write {e.filename!r}: {e.strerror}") from e
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: nothing was written
+        print(f"\n{PROG}: interrupted; no report was written", file=sys.stderr)
+        return runs.exit_status()
 
 
 def _main(args: argparse.Namespace) -> int:

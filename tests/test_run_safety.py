@@ -394,6 +394,14 @@ def test_a_full_disk_is_a_one_line_error(tmp_path, monkeypatch, capsys):
                    f"cannot write {str(out)!r}: No space left on device")  # fmt: skip
     assert not out.exists() and not [p for p in tmp_path.iterdir() if p.suffix == ".tmp"]
 
+    def ctrl_c(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(evaluate_cli, "evaluate", ctrl_c)  # Ctrl-C mid-evaluation
+    code = run_cli(evaluate_cli.main, evaluate_cli.PROG, [str(run), "--json", str(out)])
+    err = capsys.readouterr().err
+    assert code == 130 and err.strip() == "mara_mjx.evaluate: interrupted; no report was written"
+
 
 # ------------------------------------------------------------------ a missing peer
 
