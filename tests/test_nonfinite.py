@@ -132,3 +132,22 @@ def test_check_finite_names_the_loss_and_the_arrays():
     with pytest.raises(SystemExit) as e:
         divergence.check_finite(State(), {"loss": 1.0}, 0, 1)
     assert "params['actor']['kernel'] not finite" in str(e.value.code)
+
+
+def test_a_call_shorter_than_updates_per_call_is_not_divergence():
+    """The last call of a run whose updates are not a multiple of updates_per_call skips
+    its remaining iterations, whose metric rows are NaN and not valid (ppo.train's skip):
+    every default-preset run ends so (762 updates, 10 per call)."""
+
+    class State:
+        params = {"actor": {"kernel": np.ones(3, np.float32)}}
+        obs_stats = None
+
+    loss = np.array([[1.0, 2.0, np.nan], [0.5, 0.1, np.nan]])  # (seeds, updates_per_call)
+    valid = np.array([[True, True, False], [True, True, False]])
+    divergence.check_finite(State(), {"loss": loss, "valid": valid}, 760, 2)
+    members = np.stack([loss, loss], -1)  # a population's members on a last axis
+    divergence.check_finite(State(), {"policy_loss": members, "valid": valid}, 760, 2)
+    loss[1, 1] = np.nan  # a real divergence in a valid row still stops the run
+    with pytest.raises(divergence.Diverged, match="loss not finite"):
+        divergence.check_finite(State(), {"loss": loss, "valid": valid}, 760, 2)

@@ -49,12 +49,24 @@ def nonfinite(tree: Any, prefix: str) -> list[str]:
     return bad
 
 
+def _finite(x: np.ndarray, valid: np.ndarray | None) -> bool:
+    """Every entry of x finite, in the rows `valid` marks (its shape leads x's: seeds and
+    updates; x may add members)."""
+    if valid is None:
+        return bool(np.all(np.isfinite(x)))
+    valid = valid.reshape(valid.shape + (1,) * (x.ndim - valid.ndim))
+    return bool(np.all(np.isfinite(x) | ~valid))
+
+
 def check_finite(
     state: Any, metrics: dict[str, Any], done: int, n: int, prog: str = "mara_mjx.train"
 ) -> None:
     """Raise `Diverged` when the loss metrics of the call that took the run from update
     `done` to `done + n`, or `state`'s params / obs_stats, are not finite."""
-    bad = [k for k in LOSS_KEYS if k in metrics and not np.all(np.isfinite(_host(metrics[k])))]
+    # rows of the iterations a call skips (fewer updates than updates_per_call: the run's
+    # last call) are NaN by construction (ppo.train's `skip`) and marked not valid
+    valid = _host(metrics["valid"]).astype(bool) if "valid" in metrics else None
+    bad = [k for k in LOSS_KEYS if k in metrics and not _finite(_host(metrics[k]), valid)]
     bad += nonfinite(getattr(state, "params", None), "params")
     bad += nonfinite(getattr(state, "obs_stats", None), "obs_stats")
     if not bad:
