@@ -104,3 +104,21 @@ def test_summary_names_the_worst_seed_per_metric():
     assert paper["failed_seeds"] == [1001]  # 9 mm > 5.74 and 90% within 5 mm
     within = summary["real 0.3 rad/s within 5 mm(/deg)"]
     assert within["worst_seed"] == 1001 and within["worst"] == [0.9]  # smaller is worse
+
+
+def test_an_unfinished_run_is_continued_and_an_empty_one_started_again(tmp_path):
+    from mara_mjx.bench.robustness import continue_argv
+    from mara_mjx.ppo.checkpoint import CHECKPOINT_DIR, checkpoint_name
+
+    config = RobustnessConfig(tasks=("MARA",), seeds=2)
+    (job,) = make_jobs(config, tmp_path)
+    assert continue_argv(config, job) == list(job.argv)  # nothing there yet
+    job.out.mkdir(parents=True)
+    (job.out / "progress.csv").write_text("update\n")  # stopped before any checkpoint
+    assert continue_argv(config, job) == list(job.argv) and not job.out.exists()
+    folder = job.out / "seed_1000" / CHECKPOINT_DIR
+    folder.mkdir(parents=True)
+    (folder / checkpoint_name(3)).write_bytes(b"")
+    argv = continue_argv(config, job)
+    assert argv[1:5] == ["-m", "mara_mjx.train", "--resume", str(job.out)]
+    assert "--preset" not in argv and "--seeds" not in argv  # the run keeps its config

@@ -438,6 +438,24 @@ def gpu_slots(parallel: int) -> list[str | None]:
     return [str(i) for i in gpus[: parallel or len(gpus)]]
 
 
+def continue_argv(config: RobustnessConfig, job: Job) -> list[str]:
+    """The job's command; for a run folder an earlier, unfinished study left with
+    checkpoints: `--resume` of it (bitwise the run's own continuation); a folder it left
+    without any checkpoint is the study's own and holds nothing: removed."""
+    import shutil
+
+    from mara_mjx import seeds as seeds_cli
+    from mara_mjx.ppo import checkpoint as ckpt
+
+    if not job.out.exists():
+        return list(job.argv)
+    if ckpt.list_checkpoints(seeds_cli.folder(job.out, config.seed_offset)):
+        print(f"continuing the unfinished run {job.out}", flush=True)
+        return [*job.argv[:3], "--resume", str(job.out), *QUIET]
+    shutil.rmtree(job.out)
+    return list(job.argv)
+
+
 def train_all(config: RobustnessConfig, jobs: list[Job]) -> list[dict[str, Any]]:
     """Run every job's train command, as many at a time as there are GPU slots (each on
     its own GPU); per job its timing, or {"error": ...} if the command failed. A job whose
@@ -455,6 +473,7 @@ def train_all(config: RobustnessConfig, jobs: list[Job]) -> list[dict[str, Any]]
         if done.is_file() and json.loads(done.read_text()).get("command") == job.command:
             print(f"reusing the finished run of {job.command}", flush=True)
             return {**json.loads(done.read_text())["timing"], "reused": True}
+        argv = continue_argv(config, job)
         slot = slots.get()
         env = child_env()
         if slot is not None:
@@ -462,7 +481,7 @@ def train_all(config: RobustnessConfig, jobs: list[Job]) -> list[dict[str, Any]]
         print(f"training {job.task} / {job.recipe} (GPU {slot or 'default'}): {job.command}",
               flush=True)  # fmt: skip
         try:
-            timing = launch(list(job.argv), env, job.log, config.timeout_s)
+            timing = launch(argv, env, job.log, config.timeout_s)
             done.write_text(json.dumps({"command": job.command, "timing": timing}))
             print(f"  trained {job.task} / {job.recipe} in {timing['command_s']:.0f} s", flush=True)
             return timing
