@@ -28,12 +28,12 @@ derived here from the float32 the rewards are computed in (eps = 2^-24 ~ 6e-8 ne
                         than 1e-4 relative, and 1 - exp(-a) is 0 (NaN) below ~3e-8.
     done   [1e-6, 1] m  the precision bonus' radius: at 1 m it equals the smooth term
                         (D is normalised over 1 m), past it it is no longer the sharp
-                        one and alpha/done -> 0 cancels as above; below 1e-6 m (~20
-                        float32 steps of a 1 m coordinate) it is unreachable and alpha/done
-                        heads for float32's overflow.
+                        one and alpha/done -> 0 cancels as above; below 1e-6 m (about
+                        10 float32 steps of a 1 m coordinate) it is narrower than a
+                        position can resolve, so never earned.
     beta   (0, 20]      0 makes O constant (0^0 = 1), < 0 makes it infinite at theta = 0;
-                        past 20, (1/2)^beta < 1e-6, so O rounds to ~1 for every theta up
-                        to pi/2 and the orient tasks stop rewarding orientation.
+                        past 20, (1/2)^beta < 2^-20 ~ 1e-6, so O is within 1e-6 of 1 for
+                        every theta up to pi/2: the orient tasks stop rewarding it.
     gamma  [0, 1e6]     O(pi) = gamma / (1 + gamma): below 0 O turns negative and a
                         misoriented arm is paid to move away; O's whole range is
                         1 / (1 + gamma), below ~1e-6 (a few float32 steps) past 1e6.

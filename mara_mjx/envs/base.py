@@ -158,7 +158,8 @@ class EnvConfig:
     target_quat: tuple[float, float, float, float] = DEFAULT_TARGET_QUAT
     """Target TCP orientation (w, x, y, z), normalised on use. Orient tasks only."""
     reward: RewardParams = dataclasses.field(default_factory=RewardParams)
-    """Reward hyperparameters (alpha, beta, gamma, delta, eta, done)."""
+    """Reward hyperparameters (alpha, beta, gamma, delta, eta, done), each within its
+    valid range (mara_mjx.rewards.RANGES; a clear error outside it)."""
     reset_noise: float = 0.0
     """Half-width (rad) of a uniform perturbation of the reset joint positions. 0 (the
     paper's reset, all joints at 0) for training; evaluation uses a small value so that
