@@ -151,3 +151,20 @@ def test_a_call_shorter_than_updates_per_call_is_not_divergence():
     loss[1, 1] = np.nan  # a real divergence in a valid row still stops the run
     with pytest.raises(divergence.Diverged, match="loss not finite"):
         divergence.check_finite(State(), {"loss": loss, "valid": valid}, 760, 2)
+
+
+def test_a_population_stops_only_when_every_member_diverged():
+    """PBT's exploit step replaces a diverged member (NaN fitness ranks last)."""
+
+    class Population:
+        fitness = np.zeros(3, np.float32)
+        params = {"w": np.ones((3, 4), np.float32)}
+        obs_stats = {"mean": np.zeros((3, 2), np.float32)}
+
+    state = Population()
+    state.params["w"][1, 2] = np.nan
+    divergence.check_finite(state, {"loss": np.nan}, 0, 1)  # member 0's loss: not alone
+    state.params["w"][0, 0] = np.inf
+    state.obs_stats["mean"][2, 1] = np.nan
+    with pytest.raises(divergence.Diverged, match="every member"):
+        divergence.check_finite(state, {"loss": 1.0}, 0, 1)

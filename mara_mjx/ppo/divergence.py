@@ -62,13 +62,21 @@ def check_finite(
     state: Any, metrics: dict[str, Any], done: int, n: int, prog: str = "mara_mjx.train"
 ) -> None:
     """Raise `Diverged` when the loss metrics of the call that took the run from update
-    `done` to `done + n`, or `state`'s params / obs_stats, are not finite."""
-    # rows of the iterations a call skips (fewer updates than updates_per_call: the run's
-    # last call) are NaN by construction (ppo.train's `skip`) and marked not valid
-    valid = _host(metrics["valid"]).astype(bool) if "valid" in metrics else None
-    bad = [k for k in LOSS_KEYS if k in metrics and not _finite(_host(metrics[k]), valid)]
-    bad += nonfinite(getattr(state, "params", None), "params")
-    bad += nonfinite(getattr(state, "obs_stats", None), "obs_stats")
+    `done` to `done + n`, or `state`'s params / obs_stats, are not finite. A population
+    (PPOConfig.population: `state.fitness` set) stops only when all the members (of a
+    seed) diverged: its exploit step replaces a diverged member by a copy of a good one
+    (a NaN fitness ranks last), and its metrics are member 0's alone."""
+    if getattr(state, "fitness", None) is not None:
+        if not _population_diverged(state):
+            return
+        bad = ["every member's params or obs_stats"]
+    else:
+        # rows of the iterations a call skips (fewer updates than updates_per_call: the
+        # run's last call) are NaN by construction (ppo.train's `skip`), marked not valid
+        valid = _host(metrics["valid"]).astype(bool) if "valid" in metrics else None
+        bad = [k for k in LOSS_KEYS if k in metrics and not _finite(_host(metrics[k]), valid)]
+        bad += nonfinite(getattr(state, "params", None), "params")
+        bad += nonfinite(getattr(state, "obs_stats", None), "obs_stats")
     if not bad:
         return
     shown = ", ".join(bad[:3]) + (f" and {len(bad) - 3} more" if len(bad) > 3 else "")
@@ -78,3 +86,17 @@ def check_finite(
         "checkpoint is the last finite one: --resume continues from it (lower "
         "--learning_rate or --max_grad_norm first)"
     )
+
+
+def _population_diverged(state: Any) -> bool:
+    """Whether, for some seed, no member's params and obs stats are all finite (the
+    member axis is the fitness' last; leaves lead with (seeds,) members)."""
+    axis = np.ndim(_host(state.fitness)) - 1
+    finite = None
+    for leaf in jax.tree.leaves((state.params, state.obs_stats)):
+        value = _host(leaf)
+        if not np.issubdtype(value.dtype, np.inexact):
+            continue
+        ok = np.isfinite(value).all(axis=tuple(range(axis + 1, value.ndim)))
+        finite = ok if finite is None else finite & ok
+    return finite is not None and bool((~finite).all(axis=-1).any())
