@@ -23,9 +23,11 @@ delete it at any time to reclaim the space.
 Several processes may share the folder. JAX reads an entry as a whole file and, if
 it cannot be decompressed or loaded, warns and compiles instead. In a `jax.distributed`
 run only process 0 writes (JAX's rule). JAX's unlimited cache (`jax._src.lru_cache`,
-the same in jax 0.10.2 and 0.11) writes an entry in place (`Path.write_bytes`), so a
-process could read a half-written file, and a full disk or a killed process leaves a
-truncated entry that warns and recompiles on every later run; `atomic_writes` makes each
+unchanged from jax 0.10.2 to jax's 0.11.1 development tree of August 2026; 0.11.2's was
+not read: where its internals differ, the guard below keeps JAX's own write) writes an
+entry in place (`Path.write_bytes`), so a process could read a half-written file, and a
+full disk or a killed process leaves a truncated entry that warns and recompiles on
+every later run; `atomic_writes` makes each
 write a temporary file renamed into place (`os.replace`, atomic on POSIX file systems),
 so readers see a whole entry or none, and a failed write leaves nothing (JAX then warns
 once and runs the program it compiled). JAX's cache path is `jax._src.path.Path`: etils'
