@@ -122,3 +122,28 @@ def test_an_unfinished_run_is_continued_and_an_empty_one_started_again(tmp_path)
     argv = continue_argv(config, job)
     assert argv[1:5] == ["-m", "mara_mjx.train", "--resume", str(job.out)]
     assert "--preset" not in argv and "--seeds" not in argv  # the run keeps its config
+
+
+def test_pose_summary_keeps_the_worst_episodes_to_replay():
+    from types import SimpleNamespace
+
+    from mara_mjx.bench.robustness import WORST_EPISODES, pose_summary
+
+    rng = np.random.default_rng(0)
+    pos = rng.uniform(0.0, 0.5, (40, 3))
+    pos[7] = [0.1, 9.0, 0.2]  # misses by 9 mm in y
+    ori = rng.uniform(0.0, 0.5, (40, 3))
+    ori[12, 2] = 3.0  # 3 deg in yaw: within 5, not within 1
+    collisions = np.zeros(40, int)
+    collisions[[7, 30]] = [4, 1]
+    result = SimpleNamespace(
+        position_error_mm=pos, orientation_error_deg=ori, collisions=collisions
+    )
+    targets = SimpleNamespace(pos=rng.uniform(size=(40, 3)), quat=rng.uniform(size=(40, 4)))
+    out = pose_summary(result, True, targets)
+    assert out["within_5"] == pytest.approx(39 / 40) and out["within_1"] == pytest.approx(38 / 40)
+    assert out["episodes_colliding"] == pytest.approx(2 / 40)
+    worst = out["worst_episodes"]
+    assert len(worst) == WORST_EPISODES and [w["episode"] for w in worst[:2]] == [7, 12]
+    assert worst[0]["collisions"] == 4 and worst[0]["target_pos"] == targets.pos[7].tolist()
+    assert out["position_mm"]["max"] == pytest.approx(pos.max(0).tolist())

@@ -219,6 +219,7 @@ def judge_fixed(env: Any, policy: Any, n: int, config: RobustnessConfig, orienta
                 "position_mm": np.mean(h.position_error_mm, 0).tolist(),
                 "worst_episode_mm": np.max(h.position_error_mm, 0).tolist(),
                 "collisions_per_episode": float(np.mean(h.collisions)),
+                "colliding_episodes": np.flatnonzero(h.collisions).tolist(),
             },
         }
         if orientation:
@@ -228,8 +229,15 @@ def judge_fixed(env: Any, policy: Any, n: int, config: RobustnessConfig, orienta
     return rows
 
 
-def pose_summary(result: Any, orientation: bool, collisions: bool = True) -> dict[str, Any]:
-    """Fractions within 5 and 1 mm (deg), per axis mean / p95 / worst, collisions."""
+WORST_EPISODES = 5
+"""Worst episodes kept per seed and judgement, to trace a failure without rerunning."""
+
+
+def pose_summary(result: Any, orientation: bool, poses: Any = None) -> dict[str, Any]:
+    """Fractions within 5 and 1 mm (deg), per axis mean / p95 / worst, episodes with a
+    collision, and the WORST_EPISODES worst episodes (by the worst axis in mm or deg):
+    index (episode i runs from key i of the evaluation seed, so it can be replayed),
+    errors, collisions and, given the `poses`, its target."""
     pos = np.asarray(result.position_error_mm, np.float64)
     ok = [pos]
     out: dict[str, Any] = {
@@ -247,22 +255,32 @@ def pose_summary(result: Any, orientation: bool, collisions: bool = True) -> dic
             "p95": np.percentile(ori, 95, axis=0).tolist(),
             "max": ori.max(0).tolist(),
         }
+    errors = np.concatenate(ok, 1)
     for t in (5.0, 1.0):
-        out[f"within_{t:g}"] = float(np.mean(np.all(np.concatenate(ok, 1) <= t, axis=1)))
-    if collisions:
-        out["episodes_colliding"] = float(np.mean(np.asarray(result.collisions) > 0))
+        out[f"within_{t:g}"] = float(np.mean(np.all(errors <= t, axis=1)))
+    collisions = np.asarray(result.collisions)
+    out["episodes_colliding"] = float(np.mean(collisions > 0))
+    worst = []
+    for i in np.argsort(-errors.max(1), kind="stable")[:WORST_EPISODES]:
+        case = {"episode": int(i), "error": errors[i].round(3).tolist(),
+                "collisions": int(collisions[i])}  # fmt: skip
+        if poses is not None:
+            case.update(target_pos=poses.pos[i].tolist(), target_quat=poses.quat[i].tolist())
+        worst.append(case)
+    out["worst_episodes"] = worst
     return out
 
 
-def held_out_params(env: Any, eval_config: Any) -> Any:
-    """Params of `eval_config.episodes` episodes, each its own held-out pose of the env's
-    region (ppo.target_eval's poses, from `eval_config.seed`)."""
+def held_out_params(env: Any, eval_config: Any) -> tuple[Any, Any]:
+    """(params, poses) of `eval_config.episodes` episodes, each its own held-out pose of
+    the env's region (ppo.target_eval's poses, from `eval_config.seed`)."""
     from mara_mjx.envs import targets
     from mara_mjx.envs.random_target import with_targets
 
     n, seed = eval_config.episodes, eval_config.seed
     poses = targets.evaluation_poses(env.arm.mj_model, env.region, n, seed)
-    return with_targets(env.make_params(reset_noise=eval_config.noise), poses.pos, poses.quat)
+    params = with_targets(env.make_params(reset_noise=eval_config.noise), poses.pos, poses.quat)
+    return params, poses
 
 
 def judge_targets(env: Any, policy: Any, n: int, config: RobustnessConfig, orientation: bool):
@@ -270,8 +288,8 @@ def judge_targets(env: Any, policy: Any, n: int, config: RobustnessConfig, orien
     from mara_mjx.ppo.target_eval import DEFAULTS
 
     eval_cfg = DEFAULTS.replace(episodes=config.poses, seed=config.eval_seed)
-    params = held_out_params(env, eval_cfg)
-    return [{"targets": pose_summary(r, orientation)}
+    params, poses = held_out_params(env, eval_cfg)
+    return [{"targets": pose_summary(r, orientation, poses)}
             for r in _vmapped(env, eval_cfg, params, policy, n)]  # fmt: skip
 
 
@@ -287,9 +305,9 @@ def judge_real(meta: dict[str, Any], policy: Any, n: int, config: RobustnessConf
     rows: list[dict[str, Any]] = [{"real": {}} for _ in range(n)]
     for v in config.velocities:
         env = runs.make_env(meta, driver="real", velocity=v, randomize=True)
-        params = held_out_params(env, eval_cfg) if is_random_target(env) else None
+        params, poses = held_out_params(env, eval_cfg) if is_random_target(env) else (None, None)
         for row, r in zip(rows, _vmapped(env, eval_cfg, params, policy, n), strict=True):
-            row["real"][f"{v:g}"] = pose_summary(r, orientation)
+            row["real"][f"{v:g}"] = pose_summary(r, orientation, poses)
     return rows
 
 
