@@ -31,6 +31,9 @@ class Section:
     exclude: tuple[str, ...] = ()
     dotted: bool = True
     """Also offer `--{name}.field` (False: only `--field`, e.g. a subcommand's own flags)."""
+    brief: tuple[str, ...] | None = None
+    """Fields whose flags a short --help shows, with the first sentence of their
+    docstring (None: all, in full). The others still parse; a full help lists them."""
 
     def field_names(self) -> list[str]:
         return [f.name for f in dataclasses.fields(self.cls) if f.name not in self.exclude]
@@ -86,16 +89,26 @@ def add_flags(parser: argparse.ArgumentParser, sections: Sequence[Section]) -> N
             default = getattr(defaults, name)
             shown = " ".join(map(str, default)) if isinstance(default, tuple) else default
             doc = docs.get(name, "").replace("%", "%%")
+            if section.brief is not None:
+                doc = _first_sentence(doc)
             kwargs = _argparse_kwargs(hints[name])
             if "choices" not in kwargs:
                 kwargs.setdefault("metavar", name.upper())
+            hidden = section.brief is not None and name not in section.brief
             group.add_argument(
                 *flags,
                 dest=f"{section.name}.{name}",
                 default=argparse.SUPPRESS,
-                help=f"{doc} (default: {shown})",
+                help=argparse.SUPPRESS if hidden else f"{doc} (default: {shown})",
                 **kwargs,
             )
+
+
+def _first_sentence(doc: str) -> str:
+    """A docstring's first sentence (up to its first '. '), on one line."""
+    text = " ".join(doc.split())
+    end = text.find(". ")
+    return text if end < 0 else text[: end + 1]
 
 
 def add_checkpoint_argument(parser: argparse.ArgumentParser) -> None:
@@ -115,6 +128,21 @@ def overrides(namespace: argparse.Namespace, section: str) -> dict[str, Any]:
         for k, v in vars(namespace).items()
         if k.startswith(prefix)
     }
+
+
+def add_deprecated_alias(parser: argparse.ArgumentParser, old: str, new: str, prog: str) -> None:
+    """Accept the flag `old` (a store_true flag's earlier spelling) as `new`, with a note
+    on stderr; hidden from --help. Every flag is spelled with underscores."""
+    import sys
+
+    dest = new.lstrip("-")
+
+    class Deprecated(argparse.Action):
+        def __call__(self, parser, namespace, values, option_string=None):
+            print(f"{prog}: note: {old} is deprecated; use {new}", file=sys.stderr)
+            setattr(namespace, dest, True)
+
+    parser.add_argument(old, nargs=0, action=Deprecated, help=argparse.SUPPRESS)
 
 
 class UserError(Exception):

@@ -4,7 +4,7 @@ an ONNX model (the suffix chooses).
     python -m mara_mjx.export runs/MARA-.../ OUT.npz        # newest checkpoint of a run
     python -m mara_mjx.export runs/MARA-.../checkpoints/ckpt_00000100.npz OUT.npz
     python -m mara_mjx.export runs/MARA-.../ OUT.onnx       # ONNX (pip install ".[onnx]")
-    python -m mara_mjx.export runs/MARA-.../ OUT.onnx --drop-ik-finish  # MARA's preset
+    python -m mara_mjx.export runs/MARA-.../ OUT.onnx --drop_ik_finish  # MARA's preset
 
     from mara_mjx.export import load_exported
     policy = load_exported("OUT.npz")
@@ -36,7 +36,7 @@ File layout (`np.load(path)`; no pickles):
                        arm's chain and task_space's constants; mara_mjx/ik_numpy.py runs
                        it on the MLP's joint displacement before q is added),
                        ik_finish_dropped (m; > 0: the checkpoint's IK finish within that
-                       distance of the target is not in this file: --drop-ik-finish),
+                       distance of the target is not in this file: --drop_ik_finish),
                        hidden_obs (indices set to 0 after normalisation),
                        quat_index (-1, or where the sign-canonicalised quaternion starts),
                        observation_layout [{name, start, stop, units, description}],
@@ -142,7 +142,7 @@ def export_policy(
             f"{str(source)!r} ends its reach with an IK finish (ik_finish={finish} m), which "
             "needs the arm's forward kinematics and Jacobian (mara_mjx.envs.task_space."
             "finish_step); the .onnx graph carries the learnt joint-space policy only. "
-            "Export .npz (its numpy policy runs the finish), pass --drop-ik-finish to export "
+            "Export .npz (its numpy policy runs the finish), pass --drop_ik_finish to export "
             "the learnt policy alone (its last step into a 5 mm box then lands a few mm off: "
             "README, Training), or use mara_mjx.ppo.load_policy(checkpoint) in JAX"
         )
@@ -366,25 +366,33 @@ def _from_arrays(arrays: Any, meta: dict[str, Any], where: str = "the export") -
     return NumpyPolicy(kernels, biases, stats[0], stats[1], meta)
 
 
-def main(argv: list[str] | None = None) -> int:
-    from mara_mjx.cli import UserError
+def build_parser() -> argparse.ArgumentParser:
+    from mara_mjx.cli import add_deprecated_alias
 
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     parser.add_argument("checkpoint", help="checkpoint .npz file, or a run folder (its newest)")
     parser.add_argument("out", help="output file: .npz (numpy) or .onnx (ONNX)")
     parser.add_argument(
-        "--drop-ik-finish",
+        "--drop_ik_finish",
         action="store_true",
         help="export a policy with an IK finish (ik_finish, the position tasks' presets) "
         "without it: the learnt joint-space policy alone (.onnx needs it; .npz keeps the "
         "finish otherwise)",
     )
+    add_deprecated_alias(parser, "--drop-ik-finish", "--drop_ik_finish", PROG)
     parser.add_argument(
         "--overwrite",
         action="store_true",
         help="replace OUT even if it is not an exported policy (never a checkpoint or a "
         "run folder's own file)",
     )
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    from mara_mjx.cli import UserError
+
+    parser = build_parser()
     args = parser.parse_args(argv)
     try:
         out = export_policy(args.checkpoint, args.out, args.drop_ik_finish, args.overwrite)

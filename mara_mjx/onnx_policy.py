@@ -44,7 +44,7 @@ def build_model(policy: Any) -> Any:
         raise ValueError(
             "this policy keeps an IK finish (meta 'ik_finish', format mara_mjx.export/2), "
             "which the ONNX graph cannot run; export the checkpoint again with "
-            "--drop-ik-finish for .onnx, or run the .npz in numpy"
+            "--drop_ik_finish for .onnx, or run the .npz in numpy"
         )
     obs_size, act_size = policy.observation_size, policy.action_size
     nodes: list[Any] = []

@@ -155,6 +155,8 @@ class Host(NamedTuple):
     finish: Callable[..., None]
     stop: runs.StopRequest
     elapsed: Callable[[float, bool], float]
+    announce: Callable[[dict[str, Any]], None]
+    """The run's header (and its config with --verbose), given the resolved config."""
 
 
 @dataclasses.dataclass
@@ -245,7 +247,7 @@ def _train(plan, env, trainer, host: Host, st, seeds, locks: list) -> int:
         "ppo": plan.ppo.to_dict(),
         "run": plan.run.replace(out=str(top)).to_dict(),
     }
-    print(json.dumps({**resolved, "seeds": list(seeds)}, indent=2), flush=True)
+    host.announce({**resolved, "seeds": list(seeds)})
 
     orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
     try:

@@ -54,6 +54,7 @@ _START = _command_start()  # "wall-clock since command start" counts from here
 import argparse
 import dataclasses
 import datetime
+import functools
 import json
 import sys
 from collections.abc import Callable
@@ -74,6 +75,7 @@ from mara_mjx.cli import (
     configure_jax,
     env_overrides,
     overrides,
+    parse_bool,
     uses_real_driver,
 )
 from mara_mjx.envs.base import EnvConfig
@@ -110,12 +112,48 @@ class Plan:
     out: Path
     checkpoint: Path | None = None
     source_run: Path | None = None
+    preset: str = ""
+    """The PPO preset the run started from (its name, as config.json records it)."""
 
 
-def build_parser() -> argparse.ArgumentParser:
+BRIEF = {
+    "ppo": ("seed", "total_timesteps", "num_envs", "num_steps", "learning_rate"),
+    "run": ("out", "seeds", "devices", "checkpoint_every", "evaluate", "progress"),
+    "eval": ("episodes",),
+    "env": ("driver", "velocity", "max_episode_steps", "randomize"),
+}
+"""The flags a short --help shows (--help_all: every flag)."""
+
+
+def preset_of(argv: list[str] | None) -> str:
+    """The preset a command line trains: --preset, else its --env's (default_preset), else
+    "default" (no --env given)."""
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    pre.add_argument("--env")
+    pre.add_argument("--preset")
+    known, _ = pre.parse_known_args(sys.argv[1:] if argv is None else argv)
+    if known.preset in PRESETS:
+        return known.preset
+    return default_preset(known.env) if known.env in mara_mjx.registered() else "default"
+
+
+def build_parser(argv: list[str] | None = None, full: bool = False) -> argparse.ArgumentParser:
+    """The train CLI's parser. Its help shows the PPO defaults of the preset `argv` trains
+    (preset_of) and, unless `full`, only the BRIEF flags; every flag parses either way."""
+    preset = preset_of(argv)
+    sections = [
+        dataclasses.replace(
+            s,
+            defaults=PRESETS[preset] if s.name == "ppo" else s.defaults,
+            brief=None if full else BRIEF.get(s.name, ()),
+        )
+        for s in SECTIONS
+    ]
     parser = argparse.ArgumentParser(
         prog="python -m mara_mjx.train",
-        description="Train PPO on a MARA task. PPO flags show the 'default' preset's values.",
+        description=f"Train PPO on a MARA task. PPO defaults shown: the {preset!r} preset"
+        + (" (give --env to see the task's own)." if preset == "default" else ".")
+        + ("" if full else " A short list: --help_all shows every flag."),
         allow_abbrev=False,
     )
     parser.add_argument(
@@ -126,10 +164,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--preset",
         choices=sorted(PRESETS),
-        help="PPO preset (mara_mjx/ppo/config.py PRESETS): default (thousands of envs on a "
-        "GPU), ik_finish, staggered_ik_finish, paper (1 env), ros2learn, cpu (a laptop), "
-        "random_target = staggered, random_target_orient, orient_first; flags override its "
-        "fields (default: the task's, ppo.config.default_preset)",
+        help="PPO preset (default: the task's own, as `ppo.config.default_preset` picks it); "
+        "flags override its fields",
     )
     parser.add_argument(
         "--resume",
@@ -138,9 +174,33 @@ def build_parser() -> argparse.ArgumentParser:
         "checkpoint; only run.* and eval.* options may change (output goes to the "
         "checkpoint's run folder unless --out is given)",
     )
-    add_flags(parser, SECTIONS)
+    parser.add_argument(
+        "--verbose",
+        type=parse_bool,
+        nargs="?",
+        const=True,
+        default=False,
+        metavar="{true,false}",
+        help="print the whole resolved config at the start (it is always written to the "
+        "run folder's config.json)",
+    )
+
+    class HelpAll(argparse.Action):
+        def __call__(self, parser, namespace, values, option_string=None):
+            build_parser(argv, full=True).print_help()
+            parser.exit()
+
+    parser.add_argument("--help_all", nargs=0, action=HelpAll, help="show every flag and exit")
+    add_flags(parser, sections)
     add_cache_argument(parser)
-    distributed.add_arguments(parser)
+    if full:
+        distributed.add_arguments(parser)
+    else:  # parsed, not listed
+        hidden = argparse.ArgumentParser(add_help=False)
+        distributed.add_arguments(hidden)
+        for action in hidden._actions:
+            action.help = argparse.SUPPRESS
+            parser._add_action(action)
     return parser
 
 
@@ -157,7 +217,8 @@ def resolve(args: argparse.Namespace) -> Plan:
         check_rate_limit(evaluation, env_overrides(args).get("driver", "train"))
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
         out = Path(run.out or f"runs/{args.env}-{stamp}")
-        return Plan(args.env, env_overrides(args), ppo, run, evaluation, out)
+        name = args.preset or default_preset(args.env)
+        return Plan(args.env, env_overrides(args), ppo, run, evaluation, out, preset=name)
 
     checkpoint, top, group_run = seeds.find_resume(args.resume, given["run"])
     _, meta = ckpt.load_checkpoint(checkpoint)
@@ -183,7 +244,8 @@ def resolve(args: argparse.Namespace) -> Plan:
     run = run.replace(out=str(out))
     env_flags = runs.env_overrides(meta["env_config"])
     check_rate_limit(evaluation, meta["env_config"].get("driver", "train"))
-    return Plan(meta["env_name"], env_flags, ppo, run, evaluation, out, checkpoint, source)
+    preset = meta.get("preset", "")
+    return Plan(meta["env_name"], env_flags, ppo, run, evaluation, out, checkpoint, source, preset)
 
 
 def _build(what: str, make: Callable[[], Any]) -> Any:
@@ -195,7 +257,7 @@ def _build(what: str, make: Callable[[], Any]) -> Any:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = build_parser(argv).parse_args(argv)
     try:
         with runs.sigterm_as_interrupt():  # a scheduler's stop is handled as Ctrl-C
             return _main(args)
@@ -230,21 +292,22 @@ def _main(args: argparse.Namespace) -> int:
         raise UserError(str(e)) from e
     # env-dependent fields resolved (quat_index): saved with every checkpoint, policies read alike
     plan = dataclasses.replace(plan, ppo=trainer.config)
+    announce = functools.partial(_announce, plan, trainer, args.verbose)
     if plan.run.seeds > 1:
-        host = seeds.Host(run_meta, finish, STOP, elapsed)
+        host = seeds.Host(run_meta, finish, STOP, elapsed, announce)
         return seeds.train(plan, env, trainer, host)
     main_process = distributed.is_main()  # the one that writes the run folder
     lock = None  # the run folder's, held while this process writes there (mara_mjx.runs)
     try:
         if main_process:
             lock = runs.prepare_run_folder(plan.out, plan.checkpoint, plan.source_run)
-        return _train(plan, env, trainer, main_process)
+        return _train(plan, env, trainer, main_process, announce)
     finally:
         if lock is not None:
             lock.release()
 
 
-def _train(plan: Plan, env: Any, trainer: Trainer, main_process: bool) -> int:
+def _train(plan: Plan, env: Any, trainer: Trainer, main_process: bool, announce: Callable) -> int:
     """Training and the final evaluation, in a prepared (and locked) run folder."""
     progress: dict[str, Any] = {"update": 0, "env_steps": 0, "time_s": 0.0, "milestones": {}}
     state = None
@@ -262,7 +325,7 @@ def _train(plan: Plan, env: Any, trainer: Trainer, main_process: bool) -> int:
     resolved = {**meta, "resume_from": str(plan.checkpoint) if plan.checkpoint else None}
     distributed.check_same_config(resolved, plan.checkpoint)
     if main_process:
-        print(json.dumps(resolved, indent=2), flush=True)
+        announce(resolved)
         runs.write_json(plan.out / "config.json", resolved)
     else:
         print(f"{distributed.describe()}: joined; process 0 writes the run folder", flush=True)
@@ -318,10 +381,31 @@ def _train(plan: Plan, env: Any, trainer: Trainer, main_process: bool) -> int:
     return 0
 
 
+def _announce(plan: Plan, trainer: Trainer, verbose: bool, resolved: dict[str, Any]) -> None:
+    """The run's header: task, preset, seeds, the batch, the device, the run folder; the
+    whole resolved config with --verbose."""
+    n = plan.run.seeds
+    first = plan.ppo.seed
+    who = f"seed {first}" if n == 1 else f"seeds {first}..{first + n - 1}"
+    steps = trainer.num_updates * trainer.steps_per_update
+    device = jax.devices()[0]
+    if verbose:
+        print(json.dumps(resolved, indent=2), flush=True)
+    print(
+        f"{plan.env_name}, preset {plan.preset or '(of the checkpoint)'}, {who}: "
+        f"{plan.ppo.num_envs} envs x {plan.ppo.num_steps} steps per update, "
+        f"{steps:,} env steps{' per seed' if n > 1 else ''}\n"
+        f"device: {jax.device_count()} x {device.device_kind} ({device.platform}); "
+        f"run folder: {plan.out} (config.json holds the whole config; --verbose prints it)",
+        flush=True,
+    )
+
+
 def run_meta(plan: Plan, env: Any) -> dict[str, Any]:
     """The resolved config saved in config.json and with every checkpoint."""
     return {
         "env_name": plan.env_name,
+        "preset": plan.preset,
         "env_config": env.config.to_dict(),
         "observation_size": env.observation_size,
         "action_size": env.action_size,
@@ -422,16 +506,24 @@ def finish(
     if not last and (plan.out / "progress.csv").exists():  # resumed a finished run
         rows = logger.read_csv(plan.out / "progress.csv")
         last = {k: float(v) for k, v in rows[-1].items()} if rows else {}
+    metric = (
+        "reach_error_mm (the saved policy after probe_reach_steps steps from the reset)"
+        if plan.ppo.probe_reach_steps > 0
+        else "det_error_mm (one deterministic step from each training env's state)"
+    )
     summary: dict[str, Any] = {
         "env_name": plan.env_name,
-        "final_update": last,
+        "preset": plan.preset,
+        "training_last_update": last,
+        "training_note": "the last update's row of progress.csv: its rollouts of the sampled "
+        "(exploring) policy, e.g. collision_rate is the fraction of those env steps that "
+        "collided; `eval` below judges the deployed (deterministic) policy",
         "time_to_accuracy": milestones.records,
-        "time_to_accuracy_metric": "reach_error_mm (probe_reach_steps > 0: the saved policy from"
-        " the reset), else det_error_mm (one deterministic step from each env's state)",
+        "time_to_accuracy_metric": metric,
         "command_time_s": time.monotonic() - _START,
     }
     if not milestones.records:
-        print("the deterministic mean per-axis error never dropped below 5 mm")
+        print(f"training's accuracy metric, {metric}, never dropped below 5 mm")
     for name, rec in milestones.records.items():
         print(f"time to {name}: {rec['time_s']:.1f} s ({rec['env_steps']} env steps)")
     if plan.run.evaluate:
@@ -450,7 +542,13 @@ def finish(
         runs.write_json(plan.out / "eval.json", report)
         summary["eval"] = report["summary"]
     if plan.run.plots and (plan.out / "progress.csv").exists():
-        for path in logger.save_plots(plan.out / "progress.csv", plan.out / "plots"):
+        synchronised = not plan.ppo.stagger_episodes
+        reset_every = plan.ppo.num_envs * env.max_episode_steps if synchronised else 0
+        title = (
+            f"{plan.env_name}, preset {plan.preset or '(of the checkpoint)'}, seed {plan.ppo.seed}"
+        )
+        plots = logger.save_plots(plan.out / "progress.csv", plan.out / "plots", title, reset_every)
+        for path in plots:
             print(f"wrote {path}")
     runs.write_json(plan.out / "summary.json", summary)
     print(f"run folder: {plan.out}")

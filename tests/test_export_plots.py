@@ -290,7 +290,7 @@ def test_export_keeps_the_ik_finish_in_npz_refuses_it_in_onnx_and_drops_it_on_re
     keeps it (the arm's chain in its meta, mara_mjx/ik_numpy.py): the numpy policy equals
     the checkpoint's JAX policy far from the target, within the zone (the IK step) and
     where the learnt step jumps into it (the guard). .onnx refuses it with the ways out
-    named, writing nothing; --drop-ik-finish writes the learnt policy alone."""
+    named, writing nothing; --drop_ik_finish writes the learnt policy alone."""
     from mara_mjx.envs.task_space import nominal_chain
 
     path = make_run(tmp_path / "run", "MARA", True, relative=True, ik_finish=0.06)
@@ -313,7 +313,7 @@ def test_export_keeps_the_ik_finish_in_npz_refuses_it_in_onnx_and_drops_it_on_re
     np.testing.assert_allclose(policy(obs[7]), policy(obs[7:8])[0], atol=1e-6)  # one obs
     from mara_mjx import onnx_policy
 
-    with pytest.raises(ValueError, match="--drop-ik-finish"):
+    with pytest.raises(ValueError, match="--drop_ik_finish"):
         onnx_policy.build_model(policy)  # the graph cannot run the finish
     assert (np.linalg.norm(obs[:, 6:9], axis=1) < 0.06).sum() >= 10  # finish steps
     # where the learnt step jumps into the zone (the guard): an actor whose output is
@@ -356,12 +356,13 @@ def test_export_keeps_the_ik_finish_in_npz_refuses_it_in_onnx_and_drops_it_on_re
     onnx_out = tmp_path / "policy.onnx"
     assert run_cli(export_main, "export", [str(tmp_path / "run"), str(onnx_out)]) == 2
     err = capsys.readouterr().err
-    assert "--drop-ik-finish" in err and ".npz" in err and "ik_finish=0.06" in err, err
+    assert "--drop_ik_finish" in err and ".npz" in err and "ik_finish=0.06" in err, err
     assert not onnx_out.exists()
 
     dropped = tmp_path / "learnt.npz"
-    argv = [str(tmp_path / "run"), str(dropped), "--drop-ik-finish"]
+    argv = [str(tmp_path / "run"), str(dropped), "--drop-ik-finish"]  # the old spelling
     assert run_cli(export_main, "export", argv) == 0
+    assert "--drop-ik-finish is deprecated; use --drop_ik_finish" in capsys.readouterr().err
     alone = load_exported(dropped)
     assert alone.meta["ik_finish_dropped"] == 0.06 and "ik_finish" not in alone.meta
     assert alone.meta["format"] == "mara_mjx.export/1"

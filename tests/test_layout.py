@@ -107,8 +107,9 @@ def _parsers() -> list[argparse.ArgumentParser]:
     from mara_mjx.bench import runner
 
     parsers = [runner.build_parser("")]
-    for module in ("train", "evaluate", "play"):
+    for module in ("train", "evaluate", "play", "export"):
         parsers.append(importlib.import_module(f"mara_mjx.{module}").build_parser())
+    parsers.append(importlib.import_module("mara_mjx.train").build_parser(full=True))
     out = []
     while parsers:
         p = parsers.pop()
@@ -123,5 +124,7 @@ def _parsers() -> list[argparse.ArgumentParser]:
 def test_flags_have_one_spelling(parser):
     for action in parser._actions:
         for option in action.option_strings:
-            if option.startswith("--") and option != "--help":
-                assert "-" not in option[2:], f"{parser.prog}: {option} (use underscores)"
+            if option.startswith("--") and option != "--help" and "-" in option[2:]:
+                # only as a hidden alias of an earlier spelling, with a deprecation note
+                assert type(action).__name__ == "Deprecated", f"{parser.prog}: {option}"
+                assert action.help == argparse.SUPPRESS, f"{parser.prog}: {option} is listed"

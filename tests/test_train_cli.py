@@ -105,7 +105,10 @@ def test_train_writes_logs_checkpoints_plots_and_eval(trained, real_driver_eval)
     assert config["ppo"]["normalize_obs"] is True  # the 'default' preset
     assert {"python", "jax", "mujoco", "flax", "optax"} <= set(config["versions"])
     assert "git_commit" in config
-    assert '"env_name": "MARA"' in proc.stdout  # resolved config printed at start
+    first, second = proc.stdout.splitlines()[:2]  # a short header, the config in its file
+    assert first.startswith("MARA, preset ") and "seed 0: 4 envs x 8 steps per update" in first
+    assert second.startswith("device: ") and f"run folder: {out}" in second
+    assert '"env_name"' not in proc.stdout  # the whole config only with --verbose
 
     rows = read_rows(out / "progress.csv")
     assert [int(r["update"]) for r in rows] == [1, 2]
@@ -138,7 +141,7 @@ def test_train_writes_logs_checkpoints_plots_and_eval(trained, real_driver_eval)
     assert len(report["episodes"]) == 10
     assert "| MARA (this policy) |" in proc.stdout and "| MARA (paper) |" in proc.stdout
     summary = json.loads((out / "summary.json").read_text())
-    assert "time_to_accuracy" in summary and summary["final_update"]["update"] == 2
+    assert "time_to_accuracy" in summary and summary["training_last_update"]["update"] == 2
 
 
 def test_resume_reproduces_the_uninterrupted_run(trained, cli_env, tmp_path):

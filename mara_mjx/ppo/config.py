@@ -183,7 +183,7 @@ class PPOConfig(_ConfigMixin):
     (task_space.stop_outside). Needs relative_actions, no max_joint_step, and a MARA
     observation without an orientation (on the Orient tasks ik_orient_first's 6-cm zone
     is the same finish for the whole pose). Export: .npz keeps it (mara_mjx/ik_numpy.py);
-    .onnx needs --drop-ik-finish (the learnt policy alone). 0: off."""
+    .onnx needs --drop_ik_finish (the learnt policy alone). 0: off."""
     probe_reach_steps: int = 0
     """> 0: every jitted call of the trainer ends with a deterministic rollout of the
     policy training saves from the env's reset (PROBE_REACH_EPISODES episodes, reset
@@ -193,9 +193,9 @@ class PPOConfig(_ConfigMixin):
     `det_error_mm` starts where the sampled policy left each env and cannot show a
     deployed rule that takes several steps (ik_orient_first holds the TCP 1 cm off until
     the tool is aligned: benchmarks/NOTES.md section 28; for the Orient tasks' time to
-    accuracy pass --probe_reach_steps 100). No effect on training; its GPU cost is not
-    measured yet, so no preset sets it. With `population`, member 0's probe before the
-    call's exploit step (as its other metrics). 0: off."""
+    accuracy the orient_first preset sets 100). No effect on training. With
+    `population`, member 0's probe before the call's exploit step (as its other metrics).
+    0: off."""
     hidden_obs: tuple[int, ...] = ()
     """Observation indices that neither network sees (set to 0 after normalisation), e.g.
     9 10 11 for the TCP velocity of MARA/MARACollision (13 14 15 for the Orient tasks)."""
@@ -681,7 +681,7 @@ PRESETS["staggered"] = PRESETS["random_target"]
 # (ik_finish). The default's policies enter the paper's 5 mm box from their own last
 # step, up to 3.73 mm off per axis (10 seeds); with the finish, 15 fresh seeds enter at
 # most 0.25 mm off (benchmarks/results/paper_table/). Its policies need the arm's
-# Jacobian: .npz export keeps the finish (numpy); .onnx needs --drop-ik-finish.
+# Jacobian: .npz export keeps the finish (numpy); .onnx needs --drop_ik_finish.
 PRESETS["ik_finish"] = PRESETS["default"].replace(ik_finish=0.06)
 # MARACollision, the train CLI's choice there: `staggered` with the same finish (its
 # policies, 5 seeds: worst 2.17 mm per axis without it, 0.68 mm with it; 10 fresh seeds
@@ -720,10 +720,15 @@ PRESETS["random_target_orient"] = PRESETS["random_target"].replace(
 # the policies need the arm's Jacobian: no .npz/.onnx export). On a position task
 # for_env clears the orientation parts: what is left (the IK residual and stagger) was
 # measured worse than the default on MARACollision.
+# It probes the saved policy from the reset for 100 steps after every jitted call
+# (probe_reach_steps, no effect on training): the one-step metric det_error_mm cannot show
+# the orient-first rule, which holds the TCP 1 cm off until the tool is aligned, so without
+# the probe the CLI reported "never below 5 mm" beside an evaluation at 0.2 mm.
 PRESETS["orient_first"] = PRESETS["random_target_orient"].replace(
     total_timesteps=PRESETS["default"].total_timesteps,
     ik_orient_first=True,
     train_ik_gate_roll=True,
+    probe_reach_steps=100,
 )
 
 

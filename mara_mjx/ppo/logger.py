@@ -272,9 +272,18 @@ def read_progress(
     return out
 
 
-def save_plots(csv_path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:
+def save_plots(
+    csv_path: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    title: str = "",
+    reset_every: int = 0,
+) -> list[Path]:
     """PNG plots against env steps, as the paper's figures: mean reward, policy entropy,
-    and the deterministic mean per-axis error (log scale); each written atomically."""
+    and the accuracy metric (reach_error_mm where the run probed it, else det_error_mm;
+    log scale); each with `title` (the run) and written atomically. `reset_every` > 0:
+    every env's episode restarts together every that many env steps (synchronised
+    episodes: num_envs x max_episode_steps), marked with dashed lines, since the
+    training curves jump there."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -286,19 +295,33 @@ def save_plots(csv_path: str | os.PathLike, out_dir: str | os.PathLike) -> list[
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     steps = progress["env_steps"]
+    probed = np.any(np.isfinite(progress.get("reach_error_mm", np.array([math.nan]))))
+    error = (
+        ("reach_error_mm", "mean per-axis error of the saved policy, probed from the reset (mm)")
+        if probed
+        else ("det_error_mm", "mean per-axis error, one deterministic step per env (mm)")
+    )
     plots = [
-        ("reward.png", "reward_mean", "mean reward per step", False),
+        ("reward.png", "reward_mean", "mean reward per env step (sampled policy)", False),
         ("entropy.png", "entropy", "policy entropy (nats)", False),
-        ("error.png", "det_error_mm", "deterministic mean per-axis error (mm)", True),
+        ("error.png", *error, True),
     ]
     written = []
     for filename, column, label, log in plots:
         values = progress.get(column, np.full(len(steps), math.nan))
-        fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
-        ax.plot(steps, values, lw=1.2)
+        ok = np.isfinite(values)
+        fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=100)
+        ax.plot(steps[ok], values[ok], lw=1.2, marker="." if ok.sum() < 50 else None)
+        if reset_every > 0 and len(steps) and steps[-1] > reset_every:
+            for x in np.arange(reset_every, steps[-1] + 1, reset_every):
+                ax.axvline(x, color="grey", lw=0.6, ls="--", alpha=0.6)
+            ax.plot([], [], color="grey", lw=0.6, ls="--",
+                    label="all episodes restart together")  # fmt: skip
+            ax.legend(fontsize=7, loc="best")
         ax.set_xlabel("env steps")
-        ax.set_ylabel(label)
-        if log and np.any(values > 0):
+        ax.set_ylabel(label, fontsize=8)
+        ax.set_title(title or Path(csv_path).parent.name, fontsize=9)
+        if log and np.any(values[ok] > 0):
             ax.set_yscale("log")
         ax.grid(alpha=0.3)
         fig.tight_layout()
