@@ -14,7 +14,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 
 # The train CLI whose first jitted call is replaced by: RLIMIT_AS set to the process's
-# address space plus 4 MiB (no 8 MiB thread stack fits), then a 4 GiB array.
+# address space plus 4 MiB (no 8 MiB thread stack fits), then a 4 GiB array (XLA's
+# RESOURCE_EXHAUSTED, raised from the loop's device_get as in a real run).
 OUT_OF_MEMORY = """
 import resource, sys
 import jax.numpy as jnp
@@ -26,7 +27,7 @@ def vm_bytes():
         return next(int(l.split()[1]) * 1024 for l in f if l.startswith("VmSize:"))
 def out_of_memory(trainer, state, seed):
     trainer = traced(trainer, state, seed)
-    def run(state, n):
+    def run(state, n):  # compiles and runs under the limit, as a first call does
         limit = vm_bytes() + (4 << 20)
         resource.setrlimit(resource.RLIMIT_AS, (limit, resource.RLIM_INFINITY))
         return state, {"x": jnp.zeros((1 << 30,), jnp.float32)}
