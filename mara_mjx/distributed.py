@@ -56,14 +56,12 @@ On CPU (the test suite) the collectives between processes are gloo's
 
 from __future__ import annotations
 
-import atexit
 import hashlib
 import inspect
 import json
 import os
 import sys
 import threading
-import time
 import traceback
 from collections.abc import Callable
 from pathlib import Path
@@ -77,7 +75,9 @@ from mara_mjx.launch import (  # noqa: F401  (re-exported: the CLI's launch flag
     MODES,
     DistributedError,
     Launch,
+    Watchdog,
     add_arguments,
+    first_line,
     launch_from,
 )
 
@@ -138,83 +138,9 @@ def initialize(launch: Launch | None) -> None:
         timer.cancel()
     _State.active = True
     _State.exchanged = False
-    Watchdog(timeout).start()
-
-
-class Watchdog:
-    """A daemon thread that ends this process (one line on stderr, exit status 1) when
-    another process of the run stops beating for `timeout` seconds, or the coordinator
-    stops answering: every `interval` s it posts its beat count to the coordination
-    service's key-value store and reads the others'. Stopped at exit, before JAX's own
-    shutdown (atexit: last registered, first run), and after the run's last barrier."""
-
-    def __init__(self, timeout: float, interval: float = 1.0):
-        from jax._src import distributed as jax_distributed
-
-        state = jax_distributed.global_state  # (not jax.process_index: no backend yet)
-        self.client = state.client
-        self.index, self.count = state.process_id, state.num_processes or 1
-        self.timeout, self.interval = float(timeout), min(interval, timeout / 4)
-        self.stopped = threading.Event()
-        self.thread = threading.Thread(target=self._run, name="mara_mjx-watchdog", daemon=True)
-
-    def start(self) -> None:
-        if self.client is None or self.count < 2:
-            return
-        atexit.register(self.stop)
-        _State.watchdog = self
-        self.thread.start()
-
-    def stop(self) -> None:
-        self.stopped.set()
-        if self.thread.is_alive() and self.thread is not threading.current_thread():
-            self.thread.join(timeout=5)
-
-    def _run(self) -> None:
-        others = [i for i in range(self.count) if i != self.index]
-        seen = {i: (None, time.monotonic()) for i in others}
-        beat = 0
-        while not self.stopped.wait(self.interval):
-            beat += 1
-            try:
-                self.client.key_value_set(f"mara_mjx/beat/{self.index}", str(beat), True)
-                values = {i: self._beat_of(i) for i in others}
-            except Exception as e:
-                if self.stopped.is_set():
-                    return
-                self._lost(
-                    f"the coordinator (process 0) does not answer ({first_line(e)}): it died, "
-                    "was killed or its host is unreachable"
-                )
-                return
-            now = time.monotonic()
-            for i, value in values.items():
-                if value is not None and value != seen[i][0]:
-                    seen[i] = (value, now)
-                elif now - seen[i][1] > self.timeout and not self.stopped.is_set():
-                    self._lost(
-                        f"process {i} sent no sign of life for {self.timeout:g} s "
-                        "(--heartbeat_timeout): it died, was killed or hangs"
-                    )
-                    return
-
-    def _beat_of(self, i: int) -> str | None:
-        try:
-            return self.client.key_value_try_get(f"mara_mjx/beat/{i}")
-        except Exception as e:  # not posted yet: NOT_FOUND; anything else: the service
-            if "NOT_FOUND" in str(e) or "not found" in str(e).lower():
-                return None
-            raise
-
-    def _lost(self, why: str) -> None:
-        who = f"process {self.index} of {self.count}"  # (describe() may need the backend)
-        print(
-            f"{_PROG[0]}: error: {who} failed: {why}; its output says why. Stopping.",
-            file=sys.stderr,
-            flush=True,
-        )
-        sys.stdout.flush()
-        os._exit(1)
+    watchdog = Watchdog(timeout, _PROG)
+    if watchdog.start():
+        _State.watchdog = watchdog
 
 
 _PROG = ["mara_mjx"]  # the CLI's name in messages (run_cli sets it)
@@ -256,11 +182,6 @@ def is_main() -> bool:
 def describe() -> str:
     """'process 1 of 2' (for messages)."""
     return f"process {process_index()} of {process_count()}"
-
-
-def first_line(error: BaseException) -> str:
-    text = str(error).strip()
-    return text.splitlines()[0] if text else type(error).__name__
 
 
 # ----------------------------------------------------------------- agreement

@@ -28,7 +28,7 @@ JSON, markdown and a figure (`mara_mjx.ppo.target_eval`).
 Where the report goes is checked before anything runs: --json must name a file, not a
 folder, a checkpoint or a file of a run folder (config.json, progress.csv, eval.json, ...);
 an existing file is replaced only if it is an earlier report of this command (re-running
-an evaluation replaces its report), or with --overwrite (`mara_mjx.runs.check_output`).
+an evaluation replaces its report), or with --overwrite (`mara_mjx.outputs.check_output`).
 Ctrl-C (or SIGTERM) stops it with one line and exit status 130 (143), writing nothing.
 """
 
@@ -37,8 +37,9 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
-from mara_mjx import files, runs, seeds
+from mara_mjx import files, outputs, runs, seeds
 from mara_mjx.cli import (
     Section,
     UserError,
@@ -57,7 +58,7 @@ from mara_mjx.envs.random_target import is_random_target
 from mara_mjx.envs.randomize import RandomizeConfig
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import policy as policy_io
-from mara_mjx.ppo import target_eval
+from mara_mjx.ppo import seed_eval, target_eval
 from mara_mjx.ppo.config import EvalConfig
 from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table
 from mara_mjx.rewards import RewardParams
@@ -121,7 +122,7 @@ def _main(args: argparse.Namespace) -> int:
         check_rate_limit(config, "real" if uses_real_driver(args, args.checkpoint) else "train")
     if group is not None:
         top = Path(args.checkpoint)
-        return seeds.evaluate_run(
+        return evaluate_seeds_run(
             top, group, config, env_overrides(args), args.json, args.overwrite
         )
     env = runs.make_env(meta, **env_overrides(args))
@@ -131,7 +132,9 @@ def _main(args: argparse.Namespace) -> int:
         out = check_report(Path(args.json) if args.json else default, args.overwrite)
         for suffix in (".md", ".png"):  # written beside it
             what = f"{suffix[1:]} file beside the report"
-            runs.check_output(out.with_suffix(suffix), what, runs.companion_of(out), args.overwrite)
+            outputs.check_output(
+                out.with_suffix(suffix), what, outputs.companion_of(out), args.overwrite
+            )
     else:
         default = runs.run_dir_of(path) / f"eval-{path.stem}-{driver}.json"
         out = check_report(Path(args.json) if args.json else default, args.overwrite)
@@ -175,8 +178,60 @@ def _main(args: argparse.Namespace) -> int:
 
 
 def check_report(out: Path, overwrite: bool) -> Path:
-    """`out` if the JSON report may be written there (runs.check_output), else UserError."""
-    return runs.check_output(out, "--json report", runs.is_report, overwrite)
+    """`out` if the JSON report may be written there (outputs.check_output), else UserError."""
+    return outputs.check_output(out, "--json report", outputs.is_report, overwrite)
+
+
+def evaluate_seeds_run(
+    top: Path,
+    group: dict[str, Any],
+    eval_config: Any,
+    env_overrides: dict,
+    json_path,
+    overwrite: bool = False,
+) -> int:
+    """`python -m mara_mjx.evaluate RUN` on a multi-seed run: every seed's newest
+    checkpoint in one vmapped evaluation, the summary across seeds printed and written
+    (default <RUN>/eval-seeds-<driver>.json and .md; an existing file there only if it
+    is an earlier report, or with `overwrite`: outputs.check_output)."""
+    seed_ids = [int(s) for s in group["seeds"]]
+    paths = [ckpt.find_checkpoint(seeds.folder(top, s)) for s in seed_ids]
+    loaded = [ckpt.load_checkpoint(p) for p in paths]
+    env = runs.make_env(loaded[0][1], **env_overrides)
+    if is_random_target(env):
+        raise UserError(
+            "a multi-seed run of a random-target task is evaluated one seed at a time: "
+            f"python -m mara_mjx.evaluate {top}/seed_<s> (seeds {seed_ids})"
+        )
+    out = Path(json_path) if json_path else top / f"eval-seeds-{env.config.driver}.json"
+    outputs.check_output(out, "--json report", outputs.is_report, overwrite)
+    md = out.with_suffix(".md")
+    outputs.check_output(md, "markdown report", outputs.companion_of(out), overwrite)
+    name = loaded[0][1]["env_name"]
+    print(f"run: {top}, {len(seed_ids)} seeds; checkpoints: {[str(p) for p in paths]}")
+    print(f"env: {name}, driver {env.config.driver!r}, horizon {env.max_episode_steps} steps")
+    policy = seed_eval.stack_policies([policy_io.policy_from_checkpoint(a, m) for a, m in loaded])
+    results = seed_eval.evaluate_seeds(env, policy, eval_config, len(seed_ids))
+    rows = [
+        seed_eval.seed_row(s, r, m["progress"].get("milestones", {}))
+        for s, r, (_, m) in zip(seed_ids, results, loaded, strict=True)
+    ]
+    orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
+    report = seed_eval.summarise(name, orientation, rows, eval_config.to_dict())
+    report.update(
+        run=str(top),
+        env_config=env.config.to_dict(),
+        **runs.provenance(),
+        checkpoints=[
+            {"seed": s, "checkpoint": str(p), "trained": m["progress"], "episodes": r.episodes()}
+            for s, p, r, (_, m) in zip(seed_ids, paths, results, loaded, strict=True)
+        ],
+    )
+    runs.write_json(out, report)
+    files.write_atomic(md, seed_eval.markdown(report) + "\n")
+    print(seed_eval.markdown(report))
+    print(f"wrote {out}")
+    return 0
 
 
 if __name__ == "__main__":

@@ -46,7 +46,7 @@ File layout (`np.load(path)`; no pickles):
 The output is written atomically and never replaces a checkpoint (any file of a
 `checkpoints/` folder, or a mara_mjx checkpoint anywhere) or a run folder's own file; an
 existing file only if it is an exported policy (exporting again replaces it), or with
-`--overwrite` (`mara_mjx.runs.check_output`).
+`--overwrite` (`mara_mjx.outputs.check_output`).
 """
 
 from __future__ import annotations
@@ -96,7 +96,7 @@ def export_policy(
     ExportError (or mara_mjx.ppo.CheckpointError, also a ValueError) with what is
     wrong."""
     import mara_mjx
-    from mara_mjx import runs
+    from mara_mjx import outputs, runs
     from mara_mjx.envs.arm import JOINTS
     from mara_mjx.ppo import checkpoint as ckpt
     from mara_mjx.ppo import policy as policy_io
@@ -115,7 +115,7 @@ def export_policy(
     from mara_mjx.cli import UserError
 
     try:
-        runs.check_output(out_path, "export output", is_exported, overwrite)
+        outputs.check_output(out_path, "export output", is_exported, overwrite)
     except UserError as e:
         raise ExportError(str(e)) from e
     source = ckpt.find_checkpoint(checkpoint)

@@ -19,12 +19,7 @@ What the CLIs write, and what they never replace:
   checkpoint of the same run (env, env config and PPO config as its config.json):
   another run's or another task's checkpoint is refused. On taking the lock, training
   deletes the temporary files a killed writer left in the folder (`.<name>.<hex>.tmp`).
-* An output a user points somewhere (`evaluate --json`, `export OUT`, `benchmark --out`)
-  is checked before anything runs (`check_output`): never a folder, a checkpoint (any
-  file of a `checkpoints/` folder or a mara_mjx checkpoint anywhere) or a file of a run
-  folder (config.json, progress.csv, eval.json, summary.json, seeds.json, seeds.md, tb/,
-  plots/); an existing file only when it is that command's own output from an earlier
-  time (a report, an exported policy), which it replaces, or with `--overwrite`.
+* An output a user points somewhere: `mara_mjx.outputs`.
 * Every rewrite is atomic (`mara_mjx.files`): a reader, a crash or Ctrl-C finds the old
   file or the new one. A write that fails (a full disk) is one line naming the file.
 """
@@ -39,16 +34,22 @@ import signal
 import subprocess
 import sys
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from importlib import metadata
 from pathlib import Path
 from typing import Any
 
 from mara_mjx import files
-from mara_mjx.npzmeta import NPZ_ERRORS, read_npz_with_meta
+from mara_mjx.outputs import (
+    LOCK,
+    RUN_FILES,
+    is_empty,
+    is_group_folder,
+    is_run_folder,
+    read_json,
+)
 from mara_mjx.ppo.checkpoint import (
     CHECKPOINT_DIR,
-    FORMAT,
     CheckpointError,
     list_checkpoints,
     load_checkpoint,
@@ -65,145 +66,6 @@ def prune_checkpoints(run_dir: str | os.PathLike, keep: int) -> None:
     """Delete all but the newest `keep` checkpoints of a run folder."""
     for old in list_checkpoints(run_dir)[:-keep]:
         old.unlink(missing_ok=True)
-
-
-def check_not_checkpoint(path: str | os.PathLike, what: str) -> None:
-    """ValueError if writing `path` would replace a training checkpoint or put a file among
-    a run's checkpoints: anything inside a `checkpoints/` folder, or an existing file that
-    is a mara_mjx checkpoint. `what` names the file in the message ("export output")."""
-    path = Path(path)
-    if path.resolve().parent.name == CHECKPOINT_DIR:
-        raise ValueError(
-            f"{what} {str(path)!r} is inside a run's {CHECKPOINT_DIR}/ folder, which holds "
-            "training checkpoints only; write it elsewhere (e.g. next to the run folder)"
-        )
-    if path.is_file():
-        try:
-            _, meta = read_npz_with_meta(path)
-        except NPZ_ERRORS:
-            return
-        if isinstance(meta, dict) and meta.get("format") == FORMAT:
-            raise ValueError(
-                f"{what} {str(path)!r} is a training checkpoint; writing there would destroy "
-                "it. Choose another file name"
-            )
-
-
-RUN_FILES = ("config.json", "progress.csv", "eval.json", "summary.json")
-"""A run folder's own files (besides checkpoints/, tb/ and plots/)."""
-GROUP_FILES = ("seeds.json", "seeds.md")
-"""A multi-seed run folder's own files (mara_mjx.seeds)."""
-LOCK = ".lock"
-"""The lock file of a run folder while a process trains it (files.FolderLock)."""
-
-
-def read_json(path: str | os.PathLike) -> Any:
-    """The JSON value of a file, or None when it is missing or not JSON."""
-    try:
-        return json.loads(Path(path).read_text())
-    except (OSError, ValueError):
-        return None
-
-
-def is_run_folder(folder: str | os.PathLike) -> bool:
-    """True if `folder` holds the config.json of a mara_mjx training run."""
-    config = read_json(Path(folder) / "config.json")
-    return isinstance(config, dict) and {"env_name", "ppo", "run"} <= config.keys()
-
-
-def is_group_folder(folder: str | os.PathLike) -> bool:
-    """True if `folder` holds the seeds.json of a mara_mjx multi-seed run."""
-    group = read_json(Path(folder) / GROUP_FILES[0])
-    return isinstance(group, dict) and isinstance(group.get("seeds"), list)
-
-
-def _leftover(path: Path) -> bool:
-    """A file or folder a killed run may leave in a folder that holds nothing else: the
-    lock, a temporary file of files.write_atomic, an empty checkpoints/ folder."""
-    if path.name == LOCK or files.temporary_target(path.name) is not None:
-        return path.is_file()
-    if path.name == CHECKPOINT_DIR and path.is_dir():
-        return all(_leftover(p) for p in path.iterdir())
-    return False
-
-
-def is_empty(folder: str | os.PathLike) -> bool:
-    """True if `folder` is missing or holds nothing but what a killed run leaves."""
-    folder = Path(folder)
-    return not folder.is_dir() or all(_leftover(p) for p in folder.iterdir())
-
-
-def _run_file(path: Path) -> str | None:
-    """What `path` is if it is a file of a run folder (for messages), else None."""
-    parent = path.parent
-    if path.name == LOCK:
-        return "a run folder's lock file"
-    if path.name in RUN_FILES and is_run_folder(parent):
-        return f"the {path.name} of the run folder {str(parent)!r}"
-    if path.name in GROUP_FILES and is_group_folder(parent):
-        return f"the {path.name} of the multi-seed run folder {str(parent)!r}"
-    if parent.name in ("tb", "plots") and is_run_folder(parent.parent):
-        return f"a file of the {parent.name}/ folder of the run {str(parent.parent)!r}"
-    return None
-
-
-def check_output(
-    path: str | os.PathLike,
-    what: str,
-    ours: Callable[[Path], bool] | None = None,
-    overwrite: bool = False,
-) -> Path:
-    """`path` if a CLI may write its output there; otherwise UserError naming the problem
-    and the way out. `what` names the output in messages ("--json report"); `ours(path)`
-    recognises an earlier output of the same command, which is replaced; `overwrite`
-    (the CLI's --overwrite) allows replacing any other existing file. Never allowed: a
-    folder, a checkpoint, a file of a run folder (module docstring). The folder must be
-    writable (it is created if missing)."""
-    from mara_mjx.cli import UserError
-
-    path = Path(path)
-    if path.is_dir():
-        raise UserError(
-            f"{what} {str(path)!r} is a folder; name a file (e.g. {str(path / 'report.json')!r})"
-        )
-    try:
-        check_not_checkpoint(path, what)
-    except ValueError as e:
-        raise UserError(str(e)) from e
-    own = _run_file(path)
-    if own is not None:
-        raise UserError(
-            f"{what} {str(path)!r} is {own}; writing there would replace it. Choose "
-            "another file name"
-        )
-    if (path.exists() or path.is_symlink()) and not overwrite and not (ours and ours(path)):
-        raise UserError(
-            f"{what} {str(path)!r} exists and was not written by this command; choose "
-            "another file name, or pass --overwrite to replace it"
-        )
-    try:
-        files.check_writable(path.parent)
-    except OSError as e:
-        raise UserError(f"cannot write the {what} to {str(path)!r}: {e}") from e
-    return path
-
-
-def is_report(path: Path) -> bool:
-    """True for a JSON report of `python -m mara_mjx.evaluate` (any kind: the paper's
-    table, several seeds, held-out targets), which a later evaluation may replace."""
-    report = read_json(path)
-    return (
-        isinstance(report, dict)
-        and "env_name" in report
-        and "versions" in report
-        and ("episodes" in report or "per_seed" in report)
-    )
-
-
-def companion_of(report: Path) -> Callable[[Path], bool]:
-    """`ours` for a file written beside the JSON `report` (its .md, .png): an earlier
-    evaluation's if that report is one."""
-    return lambda path: is_report(report)
 
 
 _STOP_SIGNAL: list[int] = []  # the stop signals received by this process, in order

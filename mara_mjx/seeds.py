@@ -46,12 +46,12 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from mara_mjx import files, runs, sharding
+from mara_mjx import files, outputs, runs, sharding
 from mara_mjx.cli import UserError
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import logger, seed_eval
 from mara_mjx.ppo.divergence import check_finite
-from mara_mjx.ppo.policy import make_policy, policy_from_checkpoint
+from mara_mjx.ppo.policy import make_policy
 from mara_mjx.ppo.train import make_seed_trainer, take_seed
 
 SEEDS_JSON = "seeds.json"
@@ -187,8 +187,8 @@ def train(plan: Any, env: Any, trainer: Any, host: Host) -> int:
 
 def _claim(top: Path) -> files.FolderLock:
     """Create and lock a multi-seed run's folder: new, empty or a multi-seed run's."""
-    if top.is_dir() and not runs.is_empty(top) and not runs.is_group_folder(top):
-        what = "a run of one seed" if runs.is_run_folder(top) else "not a mara_mjx run folder"
+    if top.is_dir() and not outputs.is_empty(top) and not outputs.is_group_folder(top):
+        what = "a run of one seed" if outputs.is_run_folder(top) else "not a mara_mjx run folder"
         raise UserError(
             f"output folder {str(top)!r} exists and is {what}; nothing was changed there. "
             "Choose a new or empty folder for --out"
@@ -198,7 +198,7 @@ def _claim(top: Path) -> files.FolderLock:
     except OSError as e:
         raise UserError(f"cannot write to the output folder {str(top)!r}: {e}") from e
     lock = runs.claim_folder(top)
-    files.remove_temporaries(top, (*runs.GROUP_FILES, "write-test"))
+    files.remove_temporaries(top, (*outputs.GROUP_FILES, "write-test"))
     return lock
 
 
@@ -382,57 +382,3 @@ def _finish(env, state, lanes: list[Lane], plan, host: Host, orientation: bool) 
 def write_summary(out: Path, report: dict[str, Any], stem: str = "seeds") -> None:
     runs.write_json(Path(out) / f"{stem}.json", report)
     files.write_atomic(Path(out) / f"{stem}.md", seed_eval.markdown(report) + "\n")
-
-
-def evaluate_run(
-    top: Path,
-    group: dict[str, Any],
-    eval_config: Any,
-    env_overrides: dict,
-    json_path,
-    overwrite: bool = False,
-) -> int:
-    """`python -m mara_mjx.evaluate RUN` on a multi-seed run: every seed's newest
-    checkpoint in one vmapped evaluation, the summary across seeds printed and written
-    (default <RUN>/eval-seeds-<driver>.json and .md; an existing file there only if it
-    is an earlier report, or with `overwrite`: runs.check_output)."""
-    from mara_mjx.envs.random_target import is_random_target
-
-    seeds = [int(s) for s in group["seeds"]]
-    paths = [ckpt.find_checkpoint(folder(top, s)) for s in seeds]
-    loaded = [ckpt.load_checkpoint(p) for p in paths]
-    env = runs.make_env(loaded[0][1], **env_overrides)
-    if is_random_target(env):
-        raise UserError(
-            "a multi-seed run of a random-target task is evaluated one seed at a time: "
-            f"python -m mara_mjx.evaluate {top}/seed_<s> (seeds {seeds})"
-        )
-    out = Path(json_path) if json_path else top / f"eval-seeds-{env.config.driver}.json"
-    runs.check_output(out, "--json report", runs.is_report, overwrite)
-    md = out.with_suffix(".md")
-    runs.check_output(md, "markdown report", runs.companion_of(out), overwrite)
-    name = loaded[0][1]["env_name"]
-    print(f"run: {top}, {len(seeds)} seeds; checkpoints: {[str(p) for p in paths]}")
-    print(f"env: {name}, driver {env.config.driver!r}, horizon {env.max_episode_steps} steps")
-    policy = seed_eval.stack_policies([policy_from_checkpoint(a, m) for a, m in loaded])
-    results = seed_eval.evaluate_seeds(env, policy, eval_config, len(seeds))
-    rows = [
-        seed_eval.seed_row(s, r, m["progress"].get("milestones", {}))
-        for s, r, (_, m) in zip(seeds, results, loaded, strict=True)
-    ]
-    orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
-    report = seed_eval.summarise(name, orientation, rows, eval_config.to_dict())
-    report.update(
-        run=str(top),
-        env_config=env.config.to_dict(),
-        **runs.provenance(),
-        checkpoints=[
-            {"seed": s, "checkpoint": str(p), "trained": m["progress"], "episodes": r.episodes()}
-            for s, p, r, (_, m) in zip(seeds, paths, results, loaded, strict=True)
-        ],
-    )
-    runs.write_json(out, report)
-    files.write_atomic(md, seed_eval.markdown(report) + "\n")
-    print(seed_eval.markdown(report))
-    print(f"wrote {out}")
-    return 0

@@ -26,7 +26,7 @@ from gymnasium.utils.passive_env_checker import env_render_passive_checker
 from PIL import Image
 
 import mara_mjx
-from mara_mjx import play, render
+from mara_mjx import play, render, video
 from mara_mjx.cli import UserError, run_cli
 from mara_mjx.gym import MaraGymEnv, gym_id
 from mara_mjx.gym_vector import MaraVectorEnv
@@ -186,7 +186,7 @@ def test_renderer_frames_and_video_files(rgb_env, tmp_path):
     mp4 = tmp_path / "clip.mp4"
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        writer = play.VideoWriter(mp4, fps=20.0, width=W, height=H)
+        writer = video.VideoWriter(mp4, fps=20.0, width=W, height=H)
         for f in frames:
             writer.append(f)
         assert not mp4.exists()  # written beside it until close
@@ -203,7 +203,7 @@ def test_renderer_frames_and_video_files(rgb_env, tmp_path):
     assert np.abs(first.astype(int) - up).mean() < 12  # H.264 is lossy
 
     gif = tmp_path / "clip.gif"
-    writer = play.VideoWriter(gif, fps=20.0, width=W, height=H)
+    writer = video.VideoWriter(gif, fps=20.0, width=W, height=H)
     for f in frames:
         writer.append(f)
     writer.close()
@@ -214,17 +214,17 @@ def test_renderer_frames_and_video_files(rgb_env, tmp_path):
     # unless --overwrite; an aborted video leaves nothing.
     for suffix in (".mp4", ".gif"):
         path = tmp_path / f"taken{suffix}"
-        writer = play.VideoWriter(path, fps=20.0, width=W, height=H)
+        writer = video.VideoWriter(path, fps=20.0, width=W, height=H)
         writer.append(up)
         path.write_text("someone else's")
         with pytest.raises(UserError, match="appeared while playing"):
             writer.close()
         assert path.read_text() == "someone else's"
-        writer = play.VideoWriter(path, fps=20.0, width=W, height=H, overwrite=True)
+        writer = video.VideoWriter(path, fps=20.0, width=W, height=H, overwrite=True)
         writer.append(up)
         writer.close()
-        assert play.is_video(path)
-        writer = play.VideoWriter(tmp_path / f"aborted{suffix}", fps=20.0, width=W, height=H)
+        assert video.is_video(path)
+        writer = video.VideoWriter(tmp_path / f"aborted{suffix}", fps=20.0, width=W, height=H)
         writer.append(up)
         writer.abort()
     assert sorted(p.name for p in tmp_path.iterdir()) == [

@@ -21,7 +21,7 @@ import pytest
 from test_export_plots import make_run
 
 from mara_mjx import evaluate as evaluate_cli
-from mara_mjx import export, files, runs
+from mara_mjx import export, files, outputs, runs
 from mara_mjx import train as train_cli
 from mara_mjx.bench import runner
 from mara_mjx.cli import UserError, run_cli
@@ -106,17 +106,17 @@ def test_what_check_output_lets_through(tmp_path):
     """A new file, an earlier report of the same command (re-running an evaluation), or
     anything else with --overwrite."""
     report = tmp_path / "eval-ckpt-train.json"
-    assert runs.check_output(report, "report", runs.is_report) == report  # new
+    assert outputs.check_output(report, "report", outputs.is_report) == report  # new
     runs.write_json(report, {"env_name": "MARA", "versions": {}, "episodes": []})
-    assert runs.check_output(report, "report", runs.is_report) == report  # an earlier one
+    assert outputs.check_output(report, "report", outputs.is_report) == report  # an earlier one
     md = report.with_suffix(".md")
     md.write_text("| table |")
-    assert runs.check_output(md, "markdown", runs.companion_of(report)) == md
+    assert outputs.check_output(md, "markdown", outputs.companion_of(report)) == md
     foreign = tmp_path / "data.json"
     foreign.write_text('{"mine": 1}')
     with pytest.raises(UserError, match="--overwrite"):
-        runs.check_output(foreign, "report", runs.is_report)
-    assert runs.check_output(foreign, "report", runs.is_report, overwrite=True) == foreign
+        outputs.check_output(foreign, "report", outputs.is_report)
+    assert outputs.check_output(foreign, "report", outputs.is_report, overwrite=True) == foreign
 
 
 def test_evaluate_of_a_seeds_run_never_replaces_a_seeds_checkpoint(tmp_path, capsys):
@@ -251,10 +251,10 @@ def test_taking_a_run_folder_cleans_what_a_killed_writer_left(tmp_path):
     lock = runs.prepare_run_folder(run, checkpoint, run.resolve())
     try:
         assert not [p for p in left if p.exists()] and all(p.exists() for p in kept)
-        assert (run / runs.LOCK).read_text().strip().isdigit()
+        assert (run / outputs.LOCK).read_text().strip().isdigit()
     finally:
         lock.release()
-    assert not (run / runs.LOCK).exists()
+    assert not (run / outputs.LOCK).exists()
 
     # a run of ours stopped before its first checkpoint starts over: its events go, a
     # file of the user's in tb/ stays

@@ -20,7 +20,7 @@ import pytest
 from conftest import FAST_COMPILE_FLAGS
 
 from mara_mjx import evaluate as evaluate_cli
-from mara_mjx import runs
+from mara_mjx import outputs, runs
 from mara_mjx import train as train_cli
 from mara_mjx.cli import run_cli
 from mara_mjx.ppo import checkpoint as ckpt
@@ -572,7 +572,7 @@ def test_resume_rewrites_progress_csv_inside_the_stop_handler(trained, tmp_path,
     with pytest.raises(Stop):
         train_cli.main(["--resume", str(copy), "--progress", "false"])
     assert seen == {s: train_cli.STOP._handle for s in seen}, seen
-    assert not (copy / runs.LOCK).exists()
+    assert not (copy / outputs.LOCK).exists()
 
 
 def test_ctrl_c_during_the_final_evaluation_and_a_full_disk_are_one_line(
@@ -657,4 +657,4 @@ def test_a_full_disk_while_checkpointing_is_one_line_and_keeps_the_run(trained, 
     assert f"--resume {copy} continues the run" in last
     assert ckpt.load_checkpoint(copy / CKPT1)[1]["progress"]["update"] == 1
     assert not (copy / CKPT2).exists()
-    assert not [p for p in copy.rglob("*") if p.name.endswith(".tmp") or p.name == runs.LOCK]
+    assert not [p for p in copy.rglob("*") if p.name.endswith(".tmp") or p.name == outputs.LOCK]

@@ -9,7 +9,7 @@ from its config (`mara_mjx.cli`), configures JAX, runs the study and writes
 table) and `<study>.png` into `--out`. Those three are checked before the study runs: an
 existing file is replaced only if it is that study's earlier output (and a full run's
 never by a --quick one), or with --overwrite; never a checkpoint or a run folder's file
-(`mara_mjx.runs.check_output`).
+(`mara_mjx.outputs.check_output`).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from typing import Any, ClassVar, NamedTuple
 import jax
 import numpy as np
 
-from mara_mjx import files, runs
+from mara_mjx import files, outputs
 from mara_mjx.cli import UserError, configure_jax
 from mara_mjx.config import ConfigMixin, check_int
 from mara_mjx.plots import finish_figure
@@ -314,7 +314,7 @@ def resolve(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> Benc
     ours = recorded_study(out / f"{args.study}.json", args.study)
     for path in [out / f"{args.study}.{ext}" for ext in ("json", "md", "png")]:
         try:
-            runs.check_output(path, f"{args.study} output", lambda _: ours, config.overwrite)
+            outputs.check_output(path, f"{args.study} output", lambda _: ours, config.overwrite)
         except UserError as e:
             parser.error(str(e))
     return config
@@ -322,7 +322,7 @@ def resolve(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> Benc
 
 def recorded_study(path: Path, study: str) -> bool:
     """True if `path` is the JSON record of an earlier run of `study` (write_results)."""
-    record = runs.read_json(path)
+    record = outputs.read_json(path)
     return isinstance(record, dict) and record.get("study") == study and "records" in record
 
 
