@@ -388,9 +388,11 @@ def test_play_shows_each_episode_target(run_dir):
     viewer = Viewer()
     config = EvalConfig(episodes=3, tolerance_mm=0.0)
     records = play.run_episodes(env, policy, config, viewer, None, None, hold=0.0)
-    assert len(records) == 3 and len(viewer.shown) == 6  # reset + 1 step per episode
-    firsts = viewer.shown[::2]
+    # the first pose while the policy compiles, then reset + 1 step per episode
+    assert len(records) == 3 and len(viewer.shown) == 7
+    np.testing.assert_array_equal(viewer.shown[0], viewer.shown[1])  # the same first target
+    firsts = viewer.shown[1::2]
     assert len({tuple(t.round(6)) for t in firsts}) == 3  # the marker moved
-    np.testing.assert_array_equal(viewer.shown[0], viewer.shown[1])  # fixed in an episode
+    np.testing.assert_array_equal(viewer.shown[1], viewer.shown[2])  # fixed in an episode
     table = np.asarray(env.default_params.table_pos)
     assert all(np.any(np.all(table == t, axis=1)) for t in firsts)
