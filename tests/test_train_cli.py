@@ -346,6 +346,51 @@ def single_run(users_env, tmp_path_factory):
     return out, proc
 
 
+def test_robustness_study_judges_a_seeds_run(seeds_run, users_env, tmp_path):
+    """`python -m mara_mjx.benchmark robustness` on the tiny two-seed run (its training
+    reused through the study's work folder, as a rerun with the same --work_dir finds
+    it): every seed judged (the paper's evaluation and the hold), the summary across
+    seeds per metric, JSON, markdown and figure."""
+    from mara_mjx.bench.robustness import RobustnessConfig, make_jobs
+
+    out, _ = seeds_run
+    work, results = tmp_path / "work", tmp_path / "results"
+    flags = ["--tasks", "MARA", "--seeds", "2", "--seed_offset", "0", "--episodes", "2"]
+    flags += ["--bootstrap", "50", "--work_dir", str(work), "--out", str(results)]
+    (job,) = make_jobs(
+        RobustnessConfig(tasks=("MARA",), seeds=2, seed_offset=0, episodes=2, bootstrap=50),
+        work,
+    )
+    shutil.copytree(out, job.out)
+    timing = {"command_s": 1.0, "launch_offset_s": 0.0}
+    job.log.with_suffix(".done").write_text(json.dumps({"command": job.command, "timing": timing}))
+    proc = run_module(users_env, "mara_mjx.benchmark", "robustness", *flags)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "reusing the finished run of python -m mara_mjx.train --env MARA --seed 0" in proc.stdout
+    data = json.loads((results / "robustness.json").read_text())
+    seeds = [r for r in data["records"] if r["kind"] == "seed"]
+    metrics = {r["metric"]: r for r in data["records"] if r["kind"] == "metric"}
+    assert [(r["task"], r["recipe"], r["preset"], r["seed"]) for r in seeds] == [
+        ("MARA", "cli", "ik_finish", 0),
+        ("MARA", "cli", "ik_finish", 1),
+    ]
+    assert set(metrics) == {"paper position", "hold position", "hold collisions/episode"}
+    for r in seeds:  # 64 env steps learn nothing: every seed misses the paper's bar
+        assert r["paper"]["episodes"] == 2 and len(r["paper"]["position_mm"]) == 3
+        assert r["failed"] and any("over the paper's mean" in w for w in r["why"])
+    paper = metrics["paper position"]
+    assert paper["failed_seeds"] == [0, 1] and paper["train_reused"] is True
+    values = np.array([r["paper"]["position_mm"] for r in seeds])
+    assert paper["mean"] == pytest.approx(values.mean(0).tolist())
+    worst = int(np.argmax(values.max(1)))
+    assert paper["worst_seed"] == worst and paper["worst"] == values[worst].tolist()
+    for iqm, (lo, hi) in zip(paper["iqm"], paper["iqm_ci95"], strict=True):
+        assert lo - 1e-9 <= iqm <= hi + 1e-9
+    text = (results / "robustness.md").read_text()
+    assert "| MARA | `cli` | paper position (mm) | 2 / 2 |" in text and "seed 1:" in text
+    assert (results / "robustness.png").read_bytes()[:4] == b"\x89PNG"
+
+
 def test_each_seed_of_a_seeds_run_is_the_single_run_of_that_seed(single_run, seeds_run):
     single, _ = single_run
     out, proc = seeds_run
