@@ -147,3 +147,21 @@ def test_pose_summary_keeps_the_worst_episodes_to_replay():
     assert len(worst) == WORST_EPISODES and [w["episode"] for w in worst[:2]] == [7, 12]
     assert worst[0]["collisions"] == 4 and worst[0]["target_pos"] == targets.pos[7].tolist()
     assert out["position_mm"]["max"] == pytest.approx(pos.max(0).tolist())
+
+
+def test_gpu_slots_name_the_users_visible_gpus(monkeypatch):
+    """With CUDA_VISIBLE_DEVICES=2,3 JAX numbers the two GPUs 0 and 1: the train commands
+    must get 2 and 3."""
+    import jax
+
+    from mara_mjx.bench import robustness
+
+    class Gpu:
+        platform = "gpu"
+
+    monkeypatch.setattr(jax, "devices", lambda: [Gpu(), Gpu()])
+    assert robustness.gpu_slots(0, "2,3") == ["2", "3"]
+    assert robustness.gpu_slots(1, "2,3") == [None]  # one at a time, as the user set it
+    assert robustness.gpu_slots(0, "") == ["0", "1"]
+    monkeypatch.setattr(jax, "devices", lambda: [Gpu()])
+    assert robustness.gpu_slots(0, "5") == [None]

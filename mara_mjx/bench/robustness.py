@@ -444,16 +444,21 @@ def make_jobs(config: RobustnessConfig, work: Path) -> list[Job]:
     return jobs
 
 
-def gpu_slots(parallel: int) -> list[str | None]:
-    """CUDA_VISIBLE_DEVICES of each concurrent train command: one per GPU of this host
-    (`parallel` 0: all; N: the first N), or [None] (one at a time, the user's setting)
-    without several GPUs."""
+def gpu_slots(parallel: int, visible: str | None = None) -> list[str | None]:
+    """CUDA_VISIBLE_DEVICES of each concurrent train command: one per GPU this process
+    sees (`parallel` 0: all; N: the first N), named as the user's CUDA_VISIBLE_DEVICES
+    (`visible`, default this process's) names them, since JAX numbers the visible GPUs
+    from 0; or [None] (one at a time, the user's setting) without several GPUs."""
+    import os
+
     import jax
 
-    gpus = [d.id for d in jax.devices() if d.platform == "gpu"]
-    if len(gpus) < 2 or parallel == 1:
+    count = sum(d.platform == "gpu" for d in jax.devices())
+    if count < 2 or parallel == 1:
         return [None]
-    return [str(i) for i in gpus[: parallel or len(gpus)]]
+    visible = os.environ.get("CUDA_VISIBLE_DEVICES") if visible is None else visible
+    names = [v.strip() for v in visible.split(",")] if visible else [str(i) for i in range(count)]
+    return names[: min(parallel or count, count)]
 
 
 def continue_argv(config: RobustnessConfig, job: Job) -> list[str]:
