@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import re
 import types
 import typing
 from collections.abc import Sequence
@@ -105,10 +106,11 @@ def add_flags(parser: argparse.ArgumentParser, sections: Sequence[Section]) -> N
 
 
 def _first_sentence(doc: str) -> str:
-    """A docstring's first sentence (up to its first '. '), on one line."""
+    """A docstring's first sentence (up to a '. ' before a capital letter, so that "..",
+    "e.g. " and numbers do not end it), on one line."""
     text = " ".join(doc.split())
-    end = text.find(". ")
-    return text if end < 0 else text[: end + 1]
+    end = re.search(r"\.\s+(?=[A-Z])", text)
+    return text if end is None else text[: end.start() + 1]
 
 
 def add_checkpoint_argument(parser: argparse.ArgumentParser) -> None:

@@ -70,11 +70,19 @@ BRIEF = {
 
 def preset_of(argv: list[str] | None) -> str:
     """The preset a command line trains: --preset, else its --env's (default_preset), else
-    "default" (no --env given)."""
+    "default" (no --env given, or a command line the real parser will reject)."""
     pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     pre.add_argument("--env")
     pre.add_argument("--preset")
-    known, _ = pre.parse_known_args(sys.argv[1:] if argv is None else argv)
+
+    def ignore(message: str) -> None:
+        raise ValueError(message)
+
+    pre.error = ignore  # e.g. `--env` without a value: the real parser says so
+    try:
+        known, _ = pre.parse_known_args(sys.argv[1:] if argv is None else argv)
+    except ValueError:
+        return "default"
     if known.preset in PRESETS:
         return known.preset
     return default_preset(known.env) if known.env in mara_mjx.registered() else "default"

@@ -1,5 +1,6 @@
-"""The CLIs' help and flags as a user meets them: the train CLI's short --help with the
-task's preset values, and an old flag spelling still accepted with a note
+"""The CLIs' help, flags and plots as a user meets them: the train CLI's short --help with
+the task's preset values, an old flag spelling still accepted with a note, the restart
+marks of the training plots
 (test_layout.py checks that every flag is spelled with underscores). In-process parsers
 only: nothing compiles."""
 
@@ -10,7 +11,7 @@ import re
 import pytest
 
 import mara_mjx
-from mara_mjx import export, train
+from mara_mjx import export, train, train_plan
 from mara_mjx.ppo.config import PRESETS, default_preset
 
 
@@ -45,3 +46,32 @@ def test_hidden_flags_still_parse():
 def test_an_explicit_preset_sets_the_defaults_shown():
     text = train.build_parser(["--env", "MARA", "--preset", "cpu"]).format_help()
     assert "the 'cpu' preset" in " ".join(text.split()) and "3000000" in text
+
+
+def test_plots_mark_synchronised_restarts_only_where_they_are_few(tmp_path, monkeypatch):
+    """Dashed lines where every episode restarts together; none when there would be
+    thousands (the paper's preset: one env, a restart every 1,024 env steps)."""
+    import matplotlib.axes
+
+    from mara_mjx.ppo import logger
+
+    rows = ["update,env_steps,reward_mean,entropy,det_error_mm"]
+    rows += [f"{u},{u * 1024},-0.5,1.0,{100.0 / u}" for u in range(1, 301)]
+    (tmp_path / "progress.csv").write_text("\n".join(rows) + "\n")
+    lines: list[float] = []
+    real = matplotlib.axes.Axes.axvline
+    monkeypatch.setattr(
+        matplotlib.axes.Axes, "axvline", lambda ax, x, **k: lines.append(x) or real(ax, x, **k)
+    )
+    logger.save_plots(tmp_path / "progress.csv", tmp_path / "few", "t", reset_every=10 * 1024)
+    assert len(lines) == 3 * 30  # 30 restarts, in each of the three plots
+    lines.clear()
+    written = logger.save_plots(tmp_path / "progress.csv", tmp_path / "many", "t", 1024)
+    assert lines == [] and all(p.read_bytes()[:4] == b"\x89PNG" for p in written)
+
+
+def test_the_help_pre_scan_leaves_bad_command_lines_to_the_parser():
+    assert train_plan.preset_of(["--env"]) == "default"  # no value: the real parser says so
+    assert train_plan.preset_of(["--env", "MARA"]) == "ik_finish"
+    assert train_plan.preset_of(["--env", "MARA", "--preset", "cpu"]) == "cpu"
+    assert train_plan.preset_of(["--resume", "runs/x"]) == "default"

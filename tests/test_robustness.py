@@ -165,3 +165,16 @@ def test_gpu_slots_name_the_users_visible_gpus(monkeypatch):
     assert robustness.gpu_slots(0, "") == ["0", "1"]
     monkeypatch.setattr(jax, "devices", lambda: [Gpu()])
     assert robustness.gpu_slots(0, "5") == [None]
+
+
+def test_a_rerun_with_other_flags_gets_its_own_run_folder(tmp_path):
+    """The run folder is named by the whole command: the same task and recipe with other
+    seeds or train flags in the same work folder never continues or judges another
+    command's run."""
+    base = RobustnessConfig(tasks=("MARA",), seeds=2)
+    (a,) = make_jobs(base, tmp_path)
+    (b,) = make_jobs(base.replace(seeds=3), tmp_path)
+    (c,) = make_jobs(base.replace(train_args="--num_envs 8"), tmp_path)
+    (again,) = make_jobs(base, tmp_path)
+    assert len({a.out, b.out, c.out}) == 3 and again.out == a.out
+    assert a.out.name.startswith("MARA-cli-")

@@ -47,6 +47,7 @@ dot per seed, failed seeds in red).
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import math
 import shlex
@@ -103,7 +104,6 @@ class RobustnessConfig(BenchConfig):
     parallel: int = 0
     """Train commands at a time, each on its own GPU (0: one per GPU of the host; 1 or a
     host without several GPUs: one at a time)."""
-    """Limit on each train command (seconds)."""
     work_dir: str = ""
     """Folder that receives the run folders and command logs, and is kept: a rerun with
     the same folder judges the runs whose same train command finished there instead of
@@ -437,6 +437,10 @@ def make_jobs(config: RobustnessConfig, work: Path) -> list[Job]:
     for task in config.tasks:
         for recipe in config.recipes:
             slug = "-".join([task, *(w.strip("-").replace("=", "_") for w in shlex.split(recipe))])
+            # the command (but its --out) in the name: a rerun with other flags or seeds in
+            # the same work folder gets its own run folder, never another command's run
+            command = shlex.join(train_argv(config, task, recipe, Path("RUN"))[1:-2])
+            slug += "-" + hashlib.sha256(command.encode()).hexdigest()[:8]
             out = work / "runs" / slug
             preset = split_recipe(recipe)[0] or default_preset(task)
             argv = tuple(train_argv(config, task, recipe, out))
@@ -530,7 +534,10 @@ def judge(config: RobustnessConfig, job: Job, timing: dict[str, Any]) -> list[di
     base = {"task": job.task, "recipe": job.recipe, "preset": job.preset, "command": job.command}
     if "error" in timing:
         return [{"kind": "error", **base, "error": timing["error"]}]
-    policies, meta, milestones = load_seeds(job.out, seeds)
+    try:
+        policies, meta, milestones = load_seeds(job.out, seeds)
+    except ValueError as e:  # CheckpointError: a run folder the study cannot judge
+        return [{"kind": "error", **base, "error": f"cannot load the seeds' checkpoints: {e}"}]
     policy = stack_policies(policies)
     env = runs.make_env(meta)
     orientation = bool(getattr(getattr(env, "task", None), "orientation", False))

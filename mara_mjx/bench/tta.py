@@ -163,7 +163,7 @@ def check_train_args(text: str, task: str, preset: str, build_env: bool = False)
     taken = [a for a in args if a.split("=")[0] in SET_BY_STUDY]
     if taken:
         raise ValueError(f"train_args: the study sets {', '.join(taken)} itself")
-    parser = train_cli.build_parser()
+    parser = train_cli.build_parser([])  # (not this process's own argv)
 
     def fail(message: str) -> None:
         raise ValueError(f"train_args: {message}")

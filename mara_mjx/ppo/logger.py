@@ -272,6 +272,10 @@ def read_progress(
     return out
 
 
+MAX_RESTART_MARKS = 40
+"""save_plots marks synchronised episode restarts with lines up to this many."""
+
+
 def save_plots(
     csv_path: str | os.PathLike,
     out_dir: str | os.PathLike,
@@ -312,11 +316,18 @@ def save_plots(
         ok = np.isfinite(values)
         fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=100)
         ax.plot(steps[ok], values[ok], lw=1.2, marker="." if ok.sum() < 50 else None)
-        if reset_every > 0 and len(steps) and steps[-1] > reset_every:
-            for x in np.arange(reset_every, steps[-1] + 1, reset_every):
+        restarts = np.zeros(0)
+        if reset_every > 0 and len(steps):
+            restarts = np.arange(reset_every, steps[-1] + 1, reset_every)
+        if 0 < len(restarts) <= MAX_RESTART_MARKS:
+            for x in restarts:
                 ax.axvline(x, color="grey", lw=0.6, ls="--", alpha=0.6)
             ax.plot([], [], color="grey", lw=0.6, ls="--",
                     label="all episodes restart together")  # fmt: skip
+            ax.legend(fontsize=7, loc="best")
+        elif len(restarts):  # e.g. one env (the paper's preset): a line per episode
+            ax.plot([], [], " ", label=f"all episodes restart together every {reset_every:,} "
+                    "env steps (not marked: too many)")  # fmt: skip
             ax.legend(fontsize=7, loc="best")
         ax.set_xlabel("env steps")
         ax.set_ylabel(label, fontsize=8)
