@@ -119,3 +119,29 @@ def test_population_trains_and_member_0_is_the_policy(toy_population):
 def test_bad_population_settings_name_the_field(field, value):
     with pytest.raises(ValueError, match=field):
         PPOConfig(**{field: value})
+
+
+def test_a_diverged_member_ranks_last_whatever_its_reward():
+    """A member whose params turned NaN keeps a finite reward (the env holds the pose for
+    NaN actions), so its fitness can be the best: the exploit step still replaces it."""
+    config = PPOConfig(
+        num_envs=1, num_steps=1, total_timesteps=2, num_minibatches=1, population=3,
+        exploit_every=1.0, exploit_fraction=0.34,
+    )  # fmt: skip
+
+    def run(state: RunnerState, n):  # the fitness: 1, 2, 3 for members 0, 1, 2
+        w = state.params["w"]
+        reward = jnp.where(jnp.isnan(w[0]), 3.0, 1.0 + w[2])
+        return state.replace(update=state.update + 1), {
+            "train_reward_mean": reward[None], "valid": jnp.array([True])}  # fmt: skip
+
+    init, update = population(_fake_member, run, config)
+    state = init(jax.random.key(0))
+    w = jnp.stack([jnp.array([0.0, 0.0, 0.0]), jnp.array([0.0, 0.0, 1.0]),
+                   jnp.array([jnp.nan, 0.0, 0.0])])  # fmt: skip
+    state = state.replace(params={"w": w})
+    state, _ = update(state, 1)  # not yet an exploit
+    assert float(state.fitness[2]) == 3.0  # the diverged member has the best fitness
+    state, _ = update(state, 1)  # the last update: exploit
+    assert np.all(np.isfinite(np.asarray(state.params["w"])))  # replaced, not copied
+    np.testing.assert_array_equal(np.asarray(state.params["w"][0]), [0.0, 0.0, 1.0])

@@ -65,7 +65,8 @@ def check_finite(
     `done` to `done + n`, or `state`'s params / obs_stats, are not finite. A population
     (PPOConfig.population: `state.fitness` set) stops only when all the members (of a
     seed) diverged: its exploit step replaces a diverged member by a copy of a good one
-    (a NaN fitness ranks last), and its metrics are member 0's alone."""
+    (a member whose params are not finite ranks last), and its metrics are member 0's
+    alone."""
     if getattr(state, "fitness", None) is not None:
         if not _population_diverged(state):
             return

@@ -545,8 +545,19 @@ def population(
         state = init_each(init, keys)
         return state.replace(fitness=jnp.zeros((K,), jnp.float32))
 
+    def finite_members(state: RunnerState) -> jax.Array:
+        """(K,) bool: the member's params and obs stats are all finite. A diverged member
+        keeps a finite fitness (the env holds the pose for NaN actions and its reward
+        stays finite), so only this ranks it last."""
+        ok = jnp.ones((K,), bool)
+        for x in jax.tree.leaves((state.params, state.obs_stats)):
+            if jnp.issubdtype(x.dtype, jnp.inexact):
+                ok &= jnp.all(jnp.isfinite(x.reshape(K, -1)), axis=1)
+        return ok
+
     def exploit(state: RunnerState) -> RunnerState:
         fitness = jnp.nan_to_num(state.fitness, nan=-jnp.inf)
+        fitness = jnp.where(finite_members(state), fitness, -jnp.inf)
         order = jnp.argsort(-fitness, stable=True)  # best first
         src = jnp.concatenate([order[: K - n_copy], order[:n_copy]])
         take = lambda tree: jax.tree.map(lambda x: x[src], tree)  # noqa: E731
