@@ -230,12 +230,17 @@ def uses_real_driver(namespace: argparse.Namespace, checkpoint: str | None = Non
         return given == "real"
     if checkpoint is None:
         return False
+    import json
+
     from mara_mjx.ppo import checkpoint as ckpt
 
     try:
-        _, meta = ckpt.load_checkpoint(ckpt.find_checkpoint(checkpoint))
+        path = Path(checkpoint)
+        if (path / "seeds.json").is_file():  # a multi-seed run: its seeds share the env
+            path = path / f"seed_{int(json.loads((path / 'seeds.json').read_text())['seeds'][0])}"
+        _, meta = ckpt.load_checkpoint(ckpt.find_checkpoint(path))
         return meta["env_config"].get("driver", "train") == "real"
-    except Exception:  # unreadable, or a multi-seed run folder: the careful choice
+    except Exception:  # unreadable: the careful choice
         return True
 
 

@@ -346,6 +346,18 @@ def single_run(users_env, tmp_path_factory):
     return out, proc
 
 
+def test_a_seeds_run_is_read_for_its_driver(seeds_run):
+    """Resuming or evaluating a multi-seed run chooses the XLA flags of its driver (the
+    train driver's, as the run was trained), not the real driver's careful default."""
+    import argparse
+
+    from mara_mjx.cli import uses_real_driver
+
+    out, _ = seeds_run
+    assert uses_real_driver(argparse.Namespace(), str(out)) is False
+    assert uses_real_driver(argparse.Namespace(), str(out / "no_such_run")) is True
+
+
 def test_robustness_study_judges_a_seeds_run(seeds_run, users_env, tmp_path):
     """`python -m mara_mjx.benchmark robustness` on the tiny two-seed run (its training
     reused through the study's work folder, as a rerun with the same --work_dir finds
