@@ -37,9 +37,11 @@ class WriteError(OSError):
     OSError's errno and strerror, with the target as its filename."""
 
 
-def _temporary(path: Path) -> Path:
-    """A new, empty file beside `path` that no other call uses (the name's first 200
-    characters, so that a name the file system allows still allows its temporary)."""
+def temporary(path: Path) -> Path:
+    """A new, empty file beside `path` that no other call uses, named as every temporary
+    file of the project (`remove_temporaries` recognises one a killed process left); the
+    name keeps the target's first 200 characters, so a name the file system allows still
+    allows its temporary."""
     while True:
         tmp = path.with_name(f".{path.name[:_NAME_KEPT]}.{secrets.token_hex(4)}.tmp")
         try:
@@ -62,7 +64,7 @@ def write_atomic(
     tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = _temporary(path)
+        tmp = temporary(path)
         with open(tmp, "wb") as f:  # by name: writers such as onnx.save read f.name
             if callable(data):
                 data(f)
@@ -126,7 +128,7 @@ def check_writable(folder: str | os.PathLike) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     probe = None  # named `.write-test.<hex>.tmp`: remove_temporaries knows it
     try:
-        probe = _temporary(folder / "write-test")
+        probe = temporary(folder / "write-test")
     finally:
         if probe is not None:
             probe.unlink(missing_ok=True)

@@ -6,7 +6,6 @@ complete, never over a file that is not a video of that format unless asked
 from __future__ import annotations
 
 import os
-import secrets
 import subprocess
 import tempfile
 from fractions import Fraction
@@ -15,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from mara_mjx import files
 from mara_mjx.cli import UserError
 
 VIDEO_MAGIC = {".mp4": (4, b"ftyp"), ".gif": (0, b"GIF8")}
@@ -35,16 +35,10 @@ def is_video(path: Path) -> bool:
 
 
 def _temporary(path: Path) -> Path:
-    """A new empty file beside `path`, named as `files.write_atomic` names its temporary
-    files (so that `files.remove_temporaries` recognises one left by a killed process)."""
+    """A new empty file beside `path` (its folder made if missing), named as the project's
+    atomic writes name theirs."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    while True:
-        tmp = path.with_name(f".{path.name[:200]}.{secrets.token_hex(4)}.tmp")
-        try:
-            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
-            return tmp
-        except FileExistsError:
-            continue
+    return files.temporary(path)
 
 
 class VideoWriter:

@@ -125,7 +125,7 @@ def test_remove_temporaries_deletes_only_the_writers_leftovers(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(others)
     # the names write_atomic really makes are recognised
     target = tmp_path / "summary.json"
-    assert files.temporary_target(files._temporary(target).name) == "summary.json"
+    assert files.temporary_target(files.temporary(target).name) == "summary.json"
 
 
 HOLD = r"""
