@@ -1,0 +1,229 @@
+"""Several seeds and populations through the CLIs, as a user runs them (subprocesses,
+tiny settings): a --seeds run is its seeds' single runs, evaluates, resumes and feeds the
+robustness study; population runs; the Orient tasks' default preset end to end. Split
+from test_train_cli.py so that the suite's two workers share the subprocess trainings."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from conftest import FAST_COMPILE_FLAGS
+from test_train_cli import CKPT1, CKPT2, TINY, read_rows, run_module
+
+from mara_mjx.ppo import checkpoint as ckpt
+
+# ------------------------------------------------------------------ several seeds
+# TINY (seed 0) with --seeds 2: seeds 0 and 1 vmapped in one program; seed 0 must match
+# a single run. With the CLI's own preset for MARA (ik_finish: the IK step in the vmapped
+# program), as a user runs it. These programs used to deadlock XLA:CPU now and then (NOTES
+# sections 15 and 28; they ran the `default` preset for that): batched LAPACK calls (the
+# IK step's LU, the vmapped orthogonal init's QR) blocking every thread of XLA's CPU
+# pool. Since NOTES section 30 a CPU program makes none
+# (test_ik_finish.py::test_cpu_training_programs_hold_no_batched_lapack_call...).
+SEEDS = [*TINY, "--seeds", "2", "--tensorboard", "false"]
+
+
+@pytest.fixture(scope="session")
+def users_env(cli_env) -> dict[str, str]:
+    """cli_env without the suite's LLVM O0 flags: programs compiled as users compile them.
+    The --seeds tests run in it (their deadlocks, NOTES sections 15 and 28, were batched
+    LAPACK calls: see SEEDS). Every process whose results these tests compare runs in it,
+    so the comparisons stay like for like."""
+    return {**cli_env, "XLA_FLAGS": cli_env["XLA_FLAGS"].replace(FAST_COMPILE_FLAGS, "")}
+
+
+@pytest.fixture(scope="session")
+def seeds_run(users_env, tmp_path_factory):
+    """(run folder, completed process) of the tiny two-seed run."""
+    out = tmp_path_factory.mktemp("seeds") / "run"
+    proc = run_module(users_env, "mara_mjx.train", *SEEDS, "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    return out, proc
+
+
+@pytest.fixture(scope="session")
+def single_run(users_env, tmp_path_factory):
+    """TINY, seed 0, compiled like seeds_run, for their comparison."""
+    out = tmp_path_factory.mktemp("single") / "run"
+    proc = run_module(users_env, "mara_mjx.train", *TINY, "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    return out, proc
+
+
+def test_a_seeds_run_is_read_for_its_driver(seeds_run):
+    """Resuming or evaluating a multi-seed run chooses the XLA flags of its driver (the
+    train driver's, as the run was trained), not the real driver's careful default."""
+    import argparse
+
+    from mara_mjx.cli import uses_real_driver
+
+    out, _ = seeds_run
+    assert uses_real_driver(argparse.Namespace(), str(out)) is False
+    assert uses_real_driver(argparse.Namespace(), str(out / "no_such_run")) is True
+
+
+def test_robustness_study_judges_a_seeds_run(seeds_run, users_env, tmp_path):
+    """`python -m mara_mjx.benchmark robustness` on the tiny two-seed run (its training
+    reused through the study's work folder, as a rerun with the same --work_dir finds
+    it): every seed judged (the paper's evaluation and the hold), the summary across
+    seeds per metric, JSON, markdown and figure."""
+    from mara_mjx.bench.robustness import RobustnessConfig, make_jobs
+
+    out, _ = seeds_run
+    work, results = tmp_path / "work", tmp_path / "results"
+    flags = ["--tasks", "MARA", "--seeds", "2", "--seed_offset", "0", "--episodes", "2"]
+    flags += ["--bootstrap", "50", "--work_dir", str(work), "--out", str(results)]
+    (job,) = make_jobs(
+        RobustnessConfig(tasks=("MARA",), seeds=2, seed_offset=0, episodes=2, bootstrap=50),
+        work,
+    )
+    shutil.copytree(out, job.out)
+    timing = {"command_s": 1.0, "launch_offset_s": 0.0}
+    job.log.with_suffix(".done").write_text(json.dumps({"command": job.command, "timing": timing}))
+    proc = run_module(users_env, "mara_mjx.benchmark", "robustness", *flags)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "reusing the finished run of python -m mara_mjx.train --env MARA --seed 0" in proc.stdout
+    data = json.loads((results / "robustness.json").read_text())
+    seeds = [r for r in data["records"] if r["kind"] == "seed"]
+    metrics = {r["metric"]: r for r in data["records"] if r["kind"] == "metric"}
+    assert [(r["task"], r["recipe"], r["preset"], r["seed"]) for r in seeds] == [
+        ("MARA", "cli", "ik_finish", 0),
+        ("MARA", "cli", "ik_finish", 1),
+    ]
+    assert set(metrics) == {"paper position", "hold position", "hold collisions/episode"}
+    for r in seeds:  # 64 env steps learn nothing: every seed misses the paper's bar
+        assert r["paper"]["episodes"] == 2 and len(r["paper"]["position_mm"]) == 3
+        assert r["failed"] and any("over the paper's mean" in w for w in r["why"])
+    paper = metrics["paper position"]
+    assert paper["failed_seeds"] == [0, 1] and paper["train_reused"] is True
+    values = np.array([r["paper"]["position_mm"] for r in seeds])
+    assert paper["mean"] == pytest.approx(values.mean(0).tolist())
+    worst = int(np.argmax(values.max(1)))
+    assert paper["worst_seed"] == worst and paper["worst"] == values[worst].tolist()
+    for iqm, (lo, hi) in zip(paper["iqm"], paper["iqm_ci95"], strict=True):
+        assert lo - 1e-9 <= iqm <= hi + 1e-9
+    text = (results / "robustness.md").read_text()
+    assert "| MARA | `cli` | paper position (mm) | 2 / 2 |" in text and "seed 1:" in text
+    assert (results / "robustness.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_each_seed_of_a_seeds_run_is_the_single_run_of_that_seed(single_run, seeds_run):
+    single, _ = single_run
+    out, proc = seeds_run
+    assert "Traceback" not in proc.stderr and "det_mm_median" in proc.stderr  # one bar
+    for s in (0, 1):
+        folder = out / f"seed_{s}"
+        config = json.loads((folder / "config.json").read_text())
+        assert config["ppo"]["seed"] == s and config["run"]["seeds"] == 1
+        assert config["run"]["out"] == str(folder)
+        assert [int(r["update"]) for r in read_rows(folder / "progress.csv")] == [1, 2]
+        assert (folder / CKPT1).exists() and (folder / CKPT2).exists()
+        assert len(json.loads((folder / "eval.json").read_text())["episodes"]) == 10
+        assert (folder / "summary.json").exists() and (folder / "plots" / "error.png").exists()
+    expected, _ = ckpt.load_checkpoint(single / CKPT2)
+    seed0, meta = ckpt.load_checkpoint(out / "seed_0" / CKPT2)
+    seed1, _ = ckpt.load_checkpoint(out / "seed_1" / CKPT2)
+    assert meta["progress"]["update"] == 2 and expected.keys() == seed0.keys()
+    for name in expected:
+        np.testing.assert_allclose(seed0[name], expected[name], atol=1e-5, err_msg=name)
+    kernel = "params/params/actor/Dense_0/kernel"
+    assert not np.allclose(seed1[kernel], seed0[kernel], atol=1e-3)  # seeds differ
+
+    report = json.loads((out / "seeds.json").read_text())
+    assert report["seeds"] == [0, 1] and [r["seed"] for r in report["per_seed"]] == [0, 1]
+    per_seed = np.array([r["position_error_mm"] for r in report["per_seed"]])
+    across = report["across_seeds"]["position_error_mm"]
+    np.testing.assert_allclose(across["mean"], per_seed.mean(0))
+    np.testing.assert_allclose(across["worst"], per_seed.max(0))
+    eval0 = json.loads((out / "seed_0" / "eval.json").read_text())["summary"]
+    np.testing.assert_allclose(per_seed[0], eval0["position_error_mm"]["mean"])
+    table = (out / "seeds.md").read_text()
+    assert "| mean |" in table and "| worst |" in table and "| MARA" not in table
+    assert table.split("\n| ")[0] in proc.stdout  # printed at the end
+
+
+def test_evaluate_cli_on_a_seeds_run(seeds_run, users_env, tmp_path):
+    out, _ = seeds_run
+    report_path = tmp_path / "seeds-eval.json"
+    proc = run_module(users_env, "mara_mjx.evaluate", str(out), "--json", str(report_path))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    assert "| mean |" in proc.stdout and "| worst |" in proc.stdout
+    report = json.loads(report_path.read_text())
+    during_training = json.loads((out / "seeds.json").read_text())
+    assert report["per_seed"] == during_training["per_seed"]  # same policies, same episodes
+    assert [c["checkpoint"] for c in report["checkpoints"]] == [
+        str(out / f"seed_{s}" / CKPT2) for s in (0, 1)
+    ]
+    assert report_path.with_suffix(".md").read_text().startswith("MARA, 2 seeds")
+
+
+def test_a_seeds_run_resumes_from_its_newest_common_checkpoint(seeds_run, users_env, tmp_path):
+    out, _ = seeds_run
+    copy = tmp_path / "resumed"
+    shutil.copytree(out, copy)
+    (copy / "seed_1" / CKPT2).unlink()  # seed 0 has update 2, seed 1 only update 1
+    quiet = ["--progress", "false", "--evaluate", "false", "--plots", "false"]
+    proc = run_module(users_env, "mara_mjx.train", "--resume", str(copy), *quiet)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    for s in (0, 1):
+        original, _ = ckpt.load_checkpoint(out / f"seed_{s}" / CKPT2)
+        resumed, meta = ckpt.load_checkpoint(copy / f"seed_{s}" / CKPT2)
+        assert meta["progress"]["update"] == 2 and meta["ppo"]["seed"] == s
+        for name in original:
+            np.testing.assert_allclose(resumed[name], original[name], atol=1e-6, err_msg=name)
+        rows = read_rows(copy / f"seed_{s}" / "progress.csv")
+        assert [int(r["update"]) for r in rows] == [1, 2]
+
+
+def test_population_run_trains_checkpoints_and_evaluates(users_env, tmp_path):
+    """`--population 2` through the CLIs, with the CLI's own preset for MARA (ik_finish:
+    the IK step in the vmapped program, which deadlocked XLA:CPU before NOTES section
+    30): member 0's policy in the checkpoints, which `evaluate` reads like any run's."""
+    out = tmp_path / "run"
+    args = [*TINY, "--population", "2", "--tensorboard", "false", "--out", str(out)]
+    proc = run_module(users_env, "mara_mjx.train", *args)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    config = json.loads((out / "config.json").read_text())
+    assert config["ppo"]["population"] == 2
+    arrays, _ = ckpt.load_checkpoint(out / CKPT2)
+    assert arrays["params/params/log_std"].shape == (2, 6)  # both members saved
+    assert arrays["fitness"].shape == (2,)
+    report = tmp_path / "eval.json"
+    proc = run_module(users_env, "mara_mjx.evaluate", str(out), "--json", str(report))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    assert json.loads(report.read_text())
+
+
+def test_orient_task_default_trains_and_its_checkpoint_runs_without_the_training_rules(
+    users_env, tmp_path
+):
+    """A fixed Orient task with no --preset (orient_first) through the CLIs: the run records
+    the training-only rules (the roll gate, the loose standoff), `evaluate` reads the
+    checkpoint, the policy a user loads from it runs without them, and `export` refuses
+    it with the way out (--preset default) named, writing nothing."""
+    from mara_mjx.ppo.policy import make_policy
+
+    out = tmp_path / "run"
+    tiny = [*TINY[2:], "--env", "MARAOrient", "--tensorboard", "false"]
+    tiny += ["--probe_reach_steps", "5"]  # the Orient tasks' time to accuracy
+    proc = run_module(users_env, "mara_mjx.train", *tiny, "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    ppo = json.loads((out / "config.json").read_text())["ppo"]
+    assert ppo["ik_orient_first"] and ppo["train_ik_gate_roll"] and ppo["stagger_episodes"]
+    assert ppo["train_ik_orient_loose"] and ppo["probe_reach_steps"] == 5
+    rows = read_rows(out / "progress.csv")  # one update per call: every row probed
+    assert rows and all(float(r["reach_error_mm"]) > 0.0 for r in rows), rows
+    report = tmp_path / "eval.json"
+    proc = run_module(users_env, "mara_mjx.evaluate", str(out), "--json", str(report))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    assert json.loads(report.read_text())
+    policy = make_policy(str(out / CKPT2))
+    assert policy.config.train_ik_gate_roll and not policy.network.ik_gate_roll
+    assert policy.config.train_ik_orient_loose and not policy.network.ik_orient_loose
+    exported = tmp_path / "policy.npz"
+    proc = run_module(users_env, "mara_mjx.export", str(out), str(exported))
+    assert proc.returncode != 0 and "--preset default" in proc.stderr, proc.stderr[-2000:]
+    assert not exported.exists()
