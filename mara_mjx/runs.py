@@ -205,13 +205,14 @@ def describe_run(meta: dict[str, Any]) -> str:
 
 
 def claim_folder(out: Path, what: str = "run folder") -> files.FolderLock:
-    """Lock `out` for this process (creating it); UserError if another process holds it.
-    The caller keeps the returned lock for as long as it writes there (it is dropped when
-    the process ends, whatever the cause)."""
+    """Lock `out` for this process (creating it); UserError if it cannot be written or
+    another process holds it. The caller keeps the returned lock for as long as it writes
+    there (it is dropped when the process ends, whatever the cause)."""
     from mara_mjx.cli import UserError
 
     lock = files.FolderLock(out, LOCK)
     try:
+        files.check_writable(out)
         taken = lock.acquire()
     except OSError as e:
         raise UserError(f"cannot write to the output folder {str(out)!r}: {e}") from e
@@ -246,10 +247,6 @@ def prepare_run_folder(
             f"output folder {str(out)!r} exists and is not a mara_mjx run folder{group}; "
             "nothing was changed there. Choose a new or empty folder for --out"
         )
-    try:
-        files.check_writable(out)
-    except OSError as e:
-        raise UserError(f"cannot write to the output folder {str(out)!r}: {e}") from e
     lock = claim_folder(out)
     try:
         files.remove_temporaries(out, (*RUN_FILES, "write-test"))

@@ -193,10 +193,6 @@ def _claim(top: Path) -> files.FolderLock:
             f"output folder {str(top)!r} exists and is {what}; nothing was changed there. "
             "Choose a new or empty folder for --out"
         )
-    try:
-        files.check_writable(top)
-    except OSError as e:
-        raise UserError(f"cannot write to the output folder {str(top)!r}: {e}") from e
     lock = runs.claim_folder(top)
     files.remove_temporaries(top, (*outputs.GROUP_FILES, "write-test"))
     return lock
