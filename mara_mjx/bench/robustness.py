@@ -234,27 +234,20 @@ WORST_EPISODES = 5
 
 
 def pose_summary(result: Any, orientation: bool, poses: Any = None) -> dict[str, Any]:
-    """Fractions within 5 and 1 mm (deg), per axis mean / p95 / worst, episodes with a
-    collision, and the WORST_EPISODES worst episodes (by the worst axis in mm or deg):
-    index (episode i runs from key i of the evaluation seed, so it can be replayed),
-    errors, collisions and, given the `poses`, its target."""
+    """Fractions within 5 and 1 mm (deg), per axis mean / median / p95 / worst
+    (target_eval.axis_stats), episodes with a collision, and the WORST_EPISODES worst
+    episodes (by the worst axis in mm or deg): index (episode i runs from key i of the
+    evaluation seed, so it can be replayed), errors, collisions and, given the `poses`,
+    its target."""
+    from mara_mjx.ppo.target_eval import axis_stats
+
     pos = np.asarray(result.position_error_mm, np.float64)
     ok = [pos]
-    out: dict[str, Any] = {
-        "position_mm": {
-            "mean": pos.mean(0).tolist(),
-            "p95": np.percentile(pos, 95, axis=0).tolist(),
-            "max": pos.max(0).tolist(),
-        }
-    }
+    out: dict[str, Any] = {"position_mm": axis_stats(pos)}
     if orientation:
         ori = np.asarray(result.orientation_error_deg, np.float64)
         ok.append(ori)
-        out["orientation_deg"] = {
-            "mean": ori.mean(0).tolist(),
-            "p95": np.percentile(ori, 95, axis=0).tolist(),
-            "max": ori.max(0).tolist(),
-        }
+        out["orientation_deg"] = axis_stats(ori)
     errors = np.concatenate(ok, 1)
     for t in (5.0, 1.0):
         out[f"within_{t:g}"] = float(np.mean(np.all(errors <= t, axis=1)))
