@@ -77,7 +77,7 @@ def child(args: argparse.Namespace) -> None:
     import jax
     import numpy as np
 
-    from mara_mjx.cli import configure_jax
+    from mara_mjx.cli.common import configure_jax
 
     configure_jax(args.cache)
     import mara_mjx

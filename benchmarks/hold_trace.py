@@ -20,11 +20,11 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mara_mjx import runs
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import policy as policy_io
 from mara_mjx.ppo.config import EvalConfig
 from mara_mjx.ppo.evaluation import evaluate
+from mara_mjx.runtime import runs
 
 
 def trace(run: Path) -> dict:

@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import mara_mjx
-from mara_mjx.cli import configure_jax
+from mara_mjx.cli.common import configure_jax
 from mara_mjx.envs.randomize import RandomizeConfig
 from mara_mjx.ppo.config import PRESETS
 from mara_mjx.ppo.policy import Policy, make_policy

@@ -92,7 +92,7 @@ def phases(env_name: str, extra: list[str], cache: str, overlap: bool) -> dict:
     import jax
     import jax.monitoring
 
-    from mara_mjx import train as train_cli
+    from mara_mjx.cli import train as train_cli
 
     def listen(event: str, d: float, **kw) -> None:
         if event in EVENTS:

@@ -19,7 +19,7 @@ steps run about 50x faster on the CPU with XLA's older CPU fusion emitters.
 """
 
 import mara_mjx._xla  # noqa: F401  (first: XLA_FLAGS before anything can start JAX)
-import mara_mjx.gym  # noqa: F401  (registers the gymnasium ids mara_mjx/<task>-v0)
+import mara_mjx.adapters.gym  # noqa: F401  (registers the gymnasium ids mara_mjx/<task>-v0)
 from mara_mjx.envs import (
     BatchedEnv,
     BatchedState,
@@ -34,7 +34,7 @@ from mara_mjx.envs import (
     registered,
 )
 from mara_mjx.envs.randomize import RandomizeConfig
-from mara_mjx.rewards import RewardParams
+from mara_mjx.envs.rewards import RewardParams
 
 __all__ = [
     "BatchedEnv",

@@ -3,7 +3,7 @@ evaluation's (`mara_mjx.ppo.config`), the env's (`mara_mjx.envs.base.EnvConfig`)
 benchmark studies' (`mara_mjx.bench`).
 
 Configs are frozen dataclasses with a docstring under each field (read by `field_docs`
-for the generated command-line help, `mara_mjx.cli`), validated in `__post_init__`
+for the generated command-line help, `mara_mjx.cli.common`), validated in `__post_init__`
 with the `check_*` helpers, whose errors name the field and the valid values.
 Imports nothing from mara_mjx, so any floor may use it.
 """

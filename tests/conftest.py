@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
-# The CLIs turn JAX's persistent compilation cache on (mara_mjx.jax_cache); tests never
+# The CLIs turn JAX's persistent compilation cache on (mara_mjx.runtime.jax_cache); tests never
 # read or write the user's cache folder, so a run's timing does not depend on an earlier
 # one. Tests that want a cache give their subprocesses a fresh temporary folder.
 os.environ["MARA_MJX_COMPILATION_CACHE"] = "0"

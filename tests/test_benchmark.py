@@ -23,8 +23,8 @@ from brax.envs.base import State
 from brax.envs.wrappers.training import wrap
 
 import mara_mjx
+from mara_mjx.adapters.brax_env import METRICS, NEVER, BraxMaraEnv, make_brax_env
 from mara_mjx.bench.ppo import CompileClock, Run
-from mara_mjx.brax_env import METRICS, NEVER, BraxMaraEnv, make_brax_env
 
 ROOT = Path(__file__).resolve().parents[1]
 META_KEYS = {"study", "command", "versions", "device", "config", "date", "records"}
@@ -358,7 +358,7 @@ def test_bad_input_as_a_user_sees_it():
 )
 def test_bad_input_gives_clear_error(args, message, capsys, compiled):
     """In-process (the same `main` as the command above): exit 2 before any compile."""
-    from mara_mjx.benchmark import main
+    from mara_mjx.cli.benchmark import main
 
     with pytest.raises(SystemExit) as stop:
         main(args)
@@ -369,7 +369,7 @@ def test_bad_input_gives_clear_error(args, message, capsys, compiled):
 
 def test_studies_sharing_an_output_folder_all_start(tmp_path):
     """Several studies check one --out folder at once (as `runs` above starts them): each
-    check uses a file of its own (mara_mjx.files), so none removes another's (CI saw
+    check uses a file of its own (mara_mjx.runtime.files), so none removes another's (CI saw
     that). Four processes, each resolving a study's config 300 times."""
     code = (
         "import sys; from mara_mjx.bench import runner; p = runner.build_parser('')\n"

@@ -21,8 +21,8 @@ pytest.importorskip("brax")
 from brax.envs.wrappers.training import EvalWrapper, wrap  # noqa: E402
 from brax.training.agents.ppo import train as ppo  # noqa: E402
 
-from mara_mjx import brax_env  # noqa: E402
-from mara_mjx.brax_env import METRICS, make_brax_env  # noqa: E402
+from mara_mjx.adapters import brax_env  # noqa: E402
+from mara_mjx.adapters.brax_env import METRICS, make_brax_env  # noqa: E402
 
 EPISODE = 8
 
@@ -74,7 +74,7 @@ QUIET = """
 from mara_mjx.bench.ppo import brax_kwargs
 from mara_mjx.ppo import PRESETS
 brax_kwargs(PRESETS["default"], 16)  # imports brax's PPO networks
-import mara_mjx.brax_env
+import mara_mjx.adapters.brax_env
 """
 
 

@@ -11,7 +11,7 @@ import re
 import pytest
 
 import mara_mjx
-from mara_mjx import export, train, train_plan
+from mara_mjx.cli import export, train, train_plan
 from mara_mjx.ppo.config import PRESETS, default_preset
 
 

@@ -105,7 +105,7 @@ def test_the_clis_choose_reproducible_gpu_flags_by_driver(tmp_path, monkeypatch)
     the deterministic ops, and flags the user set in XLA_FLAGS are left alone."""
     import argparse
 
-    from mara_mjx import cli
+    from mara_mjx.cli import common as cli
     from mara_mjx.ppo import checkpoint as ckpt
 
     assert cli.reproducible_gpu_flags(False) == "--xla_gpu_autotune_level=0"

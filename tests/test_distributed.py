@@ -26,9 +26,9 @@ import numpy as np
 import pytest
 from conftest import FAST_COMPILE_FLAGS
 
-from mara_mjx import distributed
-from mara_mjx.cli import UserError
+from mara_mjx.cli.common import UserError
 from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.runtime import distributed
 
 TESTS = Path(__file__).resolve().parent
 REPO = TESTS.parent
@@ -57,7 +57,8 @@ import sys
 sys.path.insert(0, sys.argv[1])
 from test_distributed import register_toy
 register_toy()
-from mara_mjx import distributed, train
+from mara_mjx.cli import train
+from mara_mjx.runtime import distributed
 sys.exit(distributed.run_cli(train.main, train.PROG, sys.argv[2:]))
 """
 
@@ -70,7 +71,7 @@ from test_distributed import register_toy, TOY
 register_toy()
 import jax
 import mara_mjx
-from mara_mjx import train
+from mara_mjx.cli import train
 from mara_mjx.ppo import make_train
 from mara_mjx.ppo import checkpoint as ckpt
 assert jax.device_count() == 2, jax.devices()

@@ -96,7 +96,7 @@ def test_collision_resets_pose_and_penalises_only_collision_tasks():
         np.testing.assert_allclose(np.asarray(s.qvel), 0.0)
         d = float(s.metrics["distance"])
         free = float(
-            mara_mjx.rewards.reward(
+            mara_mjx.envs.rewards.reward(
                 d, 0.0, False, j.env.default_params.reward, orientation=False, collision=False
             )
         )

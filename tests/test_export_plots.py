@@ -17,14 +17,14 @@ import numpy as np
 import pytest
 
 import mara_mjx
-from mara_mjx.cli import run_cli
-from mara_mjx.export import ExportError, load_exported
-from mara_mjx.export import main as export_main
-from mara_mjx.plots import main as plots_main
+from mara_mjx.cli.common import run_cli
+from mara_mjx.cli.export import ExportError, load_exported
+from mara_mjx.cli.export import main as export_main
 from mara_mjx.ppo import PPOConfig, RunningStats, make_policy
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo.config import for_env
 from mara_mjx.ppo.networks import make_network
+from mara_mjx.viz.plots import main as plots_main
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -92,7 +92,7 @@ def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bo
 def test_export_matches_make_policy(tmp_path, env_name, normalize, relative, step):
     path = make_run(tmp_path / "run", env_name, normalize, relative=relative, max_joint_step=step)
     out = tmp_path / "policy.npz"
-    from mara_mjx.export import export_policy
+    from mara_mjx.cli.export import export_policy
 
     export_policy(tmp_path / "run", out)  # a run folder: its newest checkpoint
     policy = load_exported(out)
@@ -138,7 +138,7 @@ def test_export_matches_make_policy(tmp_path, env_name, normalize, relative, ste
 def test_export_refuses_task_space_policies(tmp_path):
     """A task_space_actions policy needs the arm's Jacobian: a clear ExportError, nothing
     written."""
-    from mara_mjx.export import ExportError, export_policy
+    from mara_mjx.cli.export import ExportError, export_policy
 
     make_run(tmp_path / "run", "MARA", True, relative=True, task_space_actions=True)
     with pytest.raises(ExportError, match="task_space_actions"):
@@ -275,7 +275,7 @@ def test_curves_cli(tmp_path, capsys):
 
 def test_export_refuses_ik_prior_policies(tmp_path):
     """An ik_prior policy's inputs need the arm's Jacobian: a clear ExportError."""
-    from mara_mjx.export import ExportError, export_policy
+    from mara_mjx.cli.export import ExportError, export_policy
 
     make_run(tmp_path / "run", "MARA", True, relative=True, ik_prior="residual")
     with pytest.raises(ExportError, match="ik_prior"):
@@ -287,7 +287,7 @@ def test_export_keeps_the_ik_finish_in_npz_refuses_it_in_onnx_and_drops_it_on_re
     tmp_path, capsys
 ):
     """The position tasks' presets end with an IK finish (PPOConfig.ik_finish). The .npz
-    keeps it (the arm's chain in its meta, mara_mjx/ik_numpy.py): the numpy policy equals
+    keeps it (the arm's chain in its meta, mara_mjx/deploy/ik_numpy.py): the numpy policy equals
     the checkpoint's JAX policy far from the target, within the zone (the IK step) and
     where the learnt step jumps into it (the guard). .onnx refuses it with the ways out
     named, writing nothing; --drop_ik_finish writes the learnt policy alone."""
@@ -311,7 +311,7 @@ def test_export_keeps_the_ik_finish_in_npz_refuses_it_in_onnx_and_drops_it_on_re
     assert policy.meta["format"] == "mara_mjx.export/2"  # a /1 reader refuses it
     np.testing.assert_allclose(policy(obs), want, atol=1e-4)
     np.testing.assert_allclose(policy(obs[7]), policy(obs[7:8])[0], atol=1e-6)  # one obs
-    from mara_mjx import onnx_policy
+    from mara_mjx.deploy import onnx_policy
 
     with pytest.raises(ValueError, match="--drop_ik_finish"):
         onnx_policy.build_model(policy)  # the graph cannot run the finish

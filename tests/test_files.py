@@ -1,4 +1,4 @@
-"""mara_mjx.files: the one atomic writer (checkpoints, exports, JSON records, the trace
+"""mara_mjx.runtime.files: the one atomic writer (checkpoints, exports, JSON records, the trace
 cache) and the writability check, under interrupts, errors and concurrent writers."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from mara_mjx import files
+from mara_mjx.runtime import files
 
 
 def _leftovers(folder) -> list[str]:
@@ -130,7 +130,7 @@ def test_remove_temporaries_deletes_only_the_writers_leftovers(tmp_path):
 
 HOLD = r"""
 import sys, time
-from mara_mjx import files
+from mara_mjx.runtime import files
 lock = files.FolderLock(sys.argv[1])
 assert lock.acquire()
 print("locked", flush=True)

@@ -17,8 +17,8 @@ from gymnasium.utils.env_checker import check_env
 from gymnasium.vector import AutoresetMode
 
 import mara_mjx
-from mara_mjx.gym import TASK_NAMES, MaraGymEnv, gym_id
-from mara_mjx.gym_vector import MaraVectorEnv
+from mara_mjx.adapters.gym import TASK_NAMES, MaraGymEnv, gym_id
+from mara_mjx.adapters.gym_vector import MaraVectorEnv
 
 NOISE = 0.05  # reset_noise: makes reset observations depend on the key
 HORIZON = 2
@@ -66,7 +66,7 @@ def test_ids_registered_without_time_limit():
         spec = gymnasium.spec(gym_id(task))
         assert spec.max_episode_steps is None
         assert spec.kwargs == {"task": task}
-        assert spec.vector_entry_point == "mara_mjx.gym_vector:MaraVectorEnv"
+        assert spec.vector_entry_point == "mara_mjx.adapters.gym_vector:MaraVectorEnv"
 
 
 def test_make_kwargs_map_to_env_options():

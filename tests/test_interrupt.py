@@ -101,8 +101,8 @@ def test_sigterm_stops_like_ctrl_c_and_a_second_train_on_the_folder_is_refused(
     train with the same --out stops with a one-line error (it used to interleave both runs'
     rows and replace the other's checkpoints). The first run is frozen (SIGSTOP) while the
     second one tries, so that the test does not depend on timing."""
-    from mara_mjx import train as train_cli
-    from mara_mjx.cli import run_cli
+    from mara_mjx.cli import train as train_cli
+    from mara_mjx.cli.common import run_cli
 
     out = tmp_path / "run"
     proc = _start_train(cli_env, *LONG, *QUIET, "--plots", "false", "--out", str(out))

@@ -1,4 +1,4 @@
-"""JAX's persistent compilation cache as the CLIs set it up (mara_mjx.jax_cache).
+"""JAX's persistent compilation cache as the CLIs set it up (mara_mjx.runtime.jax_cache).
 
 Where the folder comes from (flag, MARA_MJX_COMPILATION_CACHE, JAX_COMPILATION_CACHE_DIR,
 the per-user default), and, in fresh processes that call `configure_jax` as every CLI
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from mara_mjx import jax_cache
+from mara_mjx.runtime import jax_cache
 
 REPO = Path(__file__).resolve().parents[1]
 VARS = (jax_cache.ENV_VAR, "JAX_COMPILATION_CACHE_DIR", "XDG_CACHE_HOME")
@@ -27,7 +27,7 @@ import json, sys
 import jax, jax.monitoring
 events = []
 jax.monitoring.register_event_listener(lambda name, **kw: events.append(name))
-from mara_mjx.cli import configure_jax
+from mara_mjx.cli.common import configure_jax
 folder = configure_jax(sys.argv[1] if len(sys.argv) > 1 else None)
 import jax.numpy as jnp
 y = jax.jit(lambda x: jnp.tanh(x @ x.T).sum())(jnp.ones((8, 8)))
@@ -61,8 +61,8 @@ def test_folder_order(clean_env, monkeypatch):
 
 
 def test_cli_flag_reaches_the_setup():
-    from mara_mjx import evaluate, play, train
     from mara_mjx.bench import runner
+    from mara_mjx.cli import evaluate, play, train
 
     for parser in (train.build_parser(), evaluate.build_parser(), play.build_parser()):
         args = parser.parse_known_args(["--compilation_cache", "false", "RUN"])[0]
@@ -119,7 +119,7 @@ import json, os, resource, signal, sys
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
 import jax, jax.numpy as jnp
 from jax._src import lru_cache, path as jax_path
-from mara_mjx.cli import configure_jax
+from mara_mjx.cli.common import configure_jax
 folder = configure_jax(sys.argv[1])
 limit = int(sys.argv[2])
 f = lambda x: jnp.tanh(x @ x.T).sum()

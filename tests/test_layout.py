@@ -90,11 +90,35 @@ def test_no_import_cycles():
 
 def test_ground_floor_imports_nothing_above_it():
     graph = import_graph()
-    allowed = ("mara_mjx.envs", "mara_mjx.rewards", "mara_mjx.config", "mara_mjx.sharding")
+    allowed = ("mara_mjx.envs", "mara_mjx.config", "mara_mjx.runtime.sharding")
     for name in graph:
-        if name.startswith(("mara_mjx.envs", "mara_mjx.rewards")):
+        if name.startswith("mara_mjx.envs"):
             above = [t for t in graph[name] if not t.startswith(allowed)]
             assert not above, (name, above)
+
+
+# the command shims (`python -m mara_mjx.train` ...), the XLA flag and the config machinery
+ROOT_MODULES = {"_xla", "config", "train", "evaluate", "play", "export", "benchmark", "plots"}
+# the shims' targets: each CLI's real module, in its room
+COMMANDS = {
+    "train": "cli.train",
+    "evaluate": "cli.evaluate",
+    "play": "cli.play",
+    "export": "cli.export",
+    "benchmark": "cli.benchmark",
+    "plots": "viz.plots",
+}
+
+
+def test_the_root_holds_the_commands_and_little_else():
+    """At most 8 modules beside __init__ and the subpackages (the rooms: cli, adapters,
+    deploy, runtime, viz, envs, ppo, bench); each command module only starts its CLI."""
+    root = {p.stem for p in PACKAGE.glob("*.py")} - {"__init__", "__main__"}
+    assert root == ROOT_MODULES and len(root) <= 8, sorted(root)
+    for command, target in COMMANDS.items():
+        text = (PACKAGE / f"{command}.py").read_text()
+        assert f'run_module("mara_mjx.{target}", run_name="__main__"' in text, command
+        assert (PACKAGE / f"{target.replace('.', '/')}.py").is_file(), target
 
 
 def test_root_modules_are_small():
@@ -108,8 +132,8 @@ def _parsers() -> list[argparse.ArgumentParser]:
 
     parsers = [runner.build_parser("")]
     for module in ("train", "evaluate", "play", "export"):
-        parsers.append(importlib.import_module(f"mara_mjx.{module}").build_parser())
-    parsers.append(importlib.import_module("mara_mjx.train").build_parser(full=True))
+        parsers.append(importlib.import_module(f"mara_mjx.cli.{module}").build_parser())
+    parsers.append(importlib.import_module("mara_mjx.cli.train").build_parser(full=True))
     out = []
     while parsers:
         p = parsers.pop()

@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mara_mjx import evaluate as evaluate_cli
-from mara_mjx import export as export_cli
-from mara_mjx import play as play_cli
-from mara_mjx.cli import run_cli
+from mara_mjx.cli import evaluate as evaluate_cli
+from mara_mjx.cli import export as export_cli
+from mara_mjx.cli import play as play_cli
+from mara_mjx.cli.common import run_cli
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import divergence
 
@@ -44,7 +44,8 @@ TINY = [
 POISONED = """
 import sys
 import jax, jax.numpy as jnp
-from mara_mjx import distributed, train
+from mara_mjx.cli import train
+from mara_mjx.runtime import distributed
 from mara_mjx.ppo import warmup
 traced = warmup.traced
 def poisoned(trainer, state, seed):

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from test_export_plots import make_run
 
-from mara_mjx.export import export_policy
+from mara_mjx.cli.export import export_policy
 from mara_mjx.ppo import make_policy
 
 onnx = pytest.importorskip("onnx")

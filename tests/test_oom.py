@@ -19,7 +19,8 @@ REPO = Path(__file__).resolve().parents[1]
 OUT_OF_MEMORY = """
 import resource, sys
 import jax.numpy as jnp
-from mara_mjx import distributed, train
+from mara_mjx.cli import train
+from mara_mjx.runtime import distributed
 from mara_mjx.ppo import warmup
 traced = warmup.traced
 def vm_bytes():

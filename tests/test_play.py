@@ -1,4 +1,4 @@
-"""Watching policies: offscreen frames (`render_mode="rgb_array"`, `mara_mjx.render`), the
+"""Watching policies: offscreen frames (`render_mode="rgb_array"`, `mara_mjx.viz.render`), the
 play CLI writing a video from a tiny checkpoint, and its clear errors on bad input
 (before anything is compiled).
 
@@ -26,14 +26,15 @@ from gymnasium.utils.passive_env_checker import env_render_passive_checker
 from PIL import Image
 
 import mara_mjx
-from mara_mjx import play, render, video
-from mara_mjx.cli import UserError, run_cli
-from mara_mjx.gym import MaraGymEnv, gym_id
-from mara_mjx.gym_vector import MaraVectorEnv
+from mara_mjx.adapters.gym import MaraGymEnv, gym_id
+from mara_mjx.adapters.gym_vector import MaraVectorEnv
+from mara_mjx.cli import play
+from mara_mjx.cli.common import UserError, run_cli
 from mara_mjx.ppo import PPOConfig, RunningStats
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo.config import EvalConfig
 from mara_mjx.ppo.networks import make_network
+from mara_mjx.viz import render, video
 
 REPO = Path(__file__).resolve().parents[1]
 W, H = 64, 48

@@ -17,9 +17,10 @@ import pytest
 from flax import struct
 
 import mara_mjx
-from mara_mjx.cli import Section, add_flags, overrides
+from mara_mjx.cli.common import Section, add_flags, overrides
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.envs.randomize import RandomizeConfig
+from mara_mjx.envs.rewards import RewardParams
 from mara_mjx.ppo import (
     PRESETS,
     EvalConfig,
@@ -38,7 +39,6 @@ from mara_mjx.ppo import (
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo.networks import forward, make_network
 from mara_mjx.ppo.train import stratified_minibatches
-from mara_mjx.rewards import RewardParams
 
 # --------------------------------------------------------------------------- toy env
 

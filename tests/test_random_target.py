@@ -22,6 +22,7 @@ from gymnasium.utils.env_checker import check_env
 
 import mara_mjx
 from mara_mjx import BatchedEnv
+from mara_mjx.adapters.gym import gym_id
 from mara_mjx.envs import ik, targets
 from mara_mjx.envs.base import DEFAULT_TARGET_POS, DEFAULT_TARGET_QUAT, METRIC_KEYS
 from mara_mjx.envs.random_target import (
@@ -32,7 +33,6 @@ from mara_mjx.envs.random_target import (
     random_target_config,
     with_targets,
 )
-from mara_mjx.gym import gym_id
 from mara_mjx.ppo import PPOConfig, RunningStats
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo.networks import make_network
@@ -363,15 +363,15 @@ def test_evaluate_cli_on_a_random_target_run(run_dir, tmp_path):
 def test_evaluate_cli_refuses_rate_limit_on_the_train_driver(run_dir):
     """--rate_limit on a train-driver run without --driver real: a UserError naming the
     fix, before anything compiles."""
-    from mara_mjx import evaluate as evaluate_cli
-    from mara_mjx.cli import UserError
+    from mara_mjx.cli import evaluate as evaluate_cli
+    from mara_mjx.cli.common import UserError
 
     with pytest.raises(UserError, match="add --driver real, or drop --rate_limit"):
         evaluate_cli.main([str(run_dir), "--rate_limit", "true"])
 
 
 def test_play_shows_each_episode_target(run_dir):
-    from mara_mjx import play
+    from mara_mjx.cli import play
     from mara_mjx.ppo.config import EvalConfig
 
     task = RANDOM_TASKS[ORIENT]  # the marker is under test, not the physics

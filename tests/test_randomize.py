@@ -13,9 +13,9 @@ import pytest
 from conftest import jitted
 
 import mara_mjx
-from mara_mjx import runs
 from mara_mjx.envs import randomize as rnd
 from mara_mjx.envs.randomize import RandomizeConfig
+from mara_mjx.runtime import runs
 
 OFF = RandomizeConfig.off()
 MAX_LATENCY = 3
@@ -186,7 +186,7 @@ def test_physics_draw_reaches_the_mjx_model():
 
 
 def test_train_cli_flags_reach_the_env_config():
-    from mara_mjx import train
+    from mara_mjx.cli import train
 
     args = train.build_parser().parse_args(
         ["--env", "MARA", "--driver", "real", "--randomize", "--kp_scale", "0.7", "1.3",

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import mara_mjx
-from mara_mjx import rewards
-from mara_mjx.rewards import RewardParams
+from mara_mjx.envs import rewards
+from mara_mjx.envs.rewards import RewardParams
 
 P = RewardParams()
 
@@ -93,7 +93,7 @@ def test_rewards_jit_and_broadcast():
     assert np.all(np.isfinite(np.asarray(out)))
 
 
-# Issue 34 item 6: the hyperparameters' valid ranges (mara_mjx.rewards.RANGES).
+# Issue 34 item 6: the hyperparameters' valid ranges (mara_mjx.envs.rewards.RANGES).
 BAD_VALUES = [
     ("delta", -1.0),  # a collision bonus
     ("eta", -0.1),  # infinite penalty at the target
@@ -165,8 +165,8 @@ def test_traced_reward_params_are_not_checked():
     ],
 )
 def test_train_cli_rejects_bad_reward_flags(flags, message, tmp_path, capsys):
-    from mara_mjx import train as train_cli
-    from mara_mjx.cli import run_cli
+    from mara_mjx.cli import train as train_cli
+    from mara_mjx.cli.common import run_cli
 
     argv = ["--env", "MARACollision", "--out", str(tmp_path / "run"), *flags]
     assert run_cli(train_cli.main, train_cli.PROG, argv) == 2

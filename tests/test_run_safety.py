@@ -20,13 +20,14 @@ import numpy as np
 import pytest
 from test_export_plots import make_run
 
-from mara_mjx import evaluate as evaluate_cli
-from mara_mjx import export, files, outputs, runs
-from mara_mjx import train as train_cli
 from mara_mjx.bench import runner
-from mara_mjx.cli import UserError, run_cli
+from mara_mjx.cli import evaluate as evaluate_cli
+from mara_mjx.cli import export
+from mara_mjx.cli import train as train_cli
+from mara_mjx.cli.common import UserError, run_cli
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import logger
+from mara_mjx.runtime import files, outputs, runs
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -207,7 +208,7 @@ def test_train_out_that_is_not_a_run_folder_is_refused_untouched(tmp_path, capsy
 
 HOLD = r"""
 import sys, time
-from mara_mjx import files
+from mara_mjx.runtime import files
 assert files.FolderLock(sys.argv[1], ".lock").acquire()
 print("locked", flush=True)
 time.sleep(600)
@@ -368,7 +369,7 @@ def test_a_full_disk_is_a_one_line_error(tmp_path, monkeypatch, capsys):
     import errno
     import os
 
-    class FullDisk:  # os, as mara_mjx.files sees it, on a full disk
+    class FullDisk:  # os, as mara_mjx.runtime.files sees it, on a full disk
         def __getattr__(self, name):
             return getattr(os, name)
 
@@ -407,8 +408,8 @@ def test_a_full_disk_is_a_one_line_error(tmp_path, monkeypatch, capsys):
 
 PEER = r"""
 import sys, time
-from mara_mjx import distributed
-from mara_mjx.launch import Launch
+from mara_mjx.runtime import distributed
+from mara_mjx.runtime.launch import Launch
 
 
 def main(argv):

@@ -58,7 +58,7 @@ def test_a_seeds_run_is_read_for_its_driver(seeds_run):
     train driver's, as the run was trained), not the real driver's careful default."""
     import argparse
 
-    from mara_mjx.cli import uses_real_driver
+    from mara_mjx.cli.common import uses_real_driver
 
     out, _ = seeds_run
     assert uses_real_driver(argparse.Namespace(), str(out)) is False

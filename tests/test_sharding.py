@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from conftest import FAST_COMPILE_FLAGS
 
-from mara_mjx import sharding
+from mara_mjx.runtime import sharding
 
 SCRIPT = r"""
 import json, re, sys

@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mara_mjx import evaluate as evaluate_cli
-from mara_mjx import outputs, runs
-from mara_mjx import train as train_cli
-from mara_mjx.cli import run_cli
+from mara_mjx.cli import evaluate as evaluate_cli
+from mara_mjx.cli import train as train_cli
+from mara_mjx.cli.common import run_cli
 from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.runtime import outputs, runs
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = [
@@ -308,8 +308,8 @@ def test_evaluate_cli_on_the_real_driver(real_driver_eval):
 
 
 def test_bad_seeds_fail_fast_with_a_clear_message(trained, tmp_path, capsys, compiled):
-    from mara_mjx import seeds
-    from mara_mjx.cli import UserError
+    from mara_mjx.cli import seeds
+    from mara_mjx.cli.common import UserError
 
     out, _ = trained
     tiny = [*TINY, "--out", str(tmp_path / "o")]
@@ -427,7 +427,7 @@ def test_ctrl_c_during_the_final_evaluation_and_a_full_disk_are_one_line(
     import errno
     import os
 
-    from mara_mjx import files
+    from mara_mjx.runtime import files
 
     copy = _finished_copy(trained, tmp_path)
 
@@ -441,7 +441,7 @@ def test_ctrl_c_during_the_final_evaluation_and_a_full_disk_are_one_line(
     assert "interrupted during the final evaluation" in err and f"--resume {copy}" in err
     assert "Traceback" not in err
 
-    class FullDisk:  # os, as mara_mjx.files sees it, with summary.json on a full disk
+    class FullDisk:  # os, as mara_mjx.runtime.files sees it, with summary.json on a full disk
         def __getattr__(self, name):
             return getattr(os, name)
 
@@ -465,9 +465,10 @@ def test_ctrl_c_during_the_final_evaluation_and_a_full_disk_are_one_line(
 FULL_DISK = r"""
 import errno, os, sys
 from pathlib import Path
-from mara_mjx import distributed, files, train
+from mara_mjx.cli import train
+from mara_mjx.runtime import distributed, files
 
-class FullDisk:  # os, as mara_mjx.files sees it, with no room for a checkpoint
+class FullDisk:  # os, as mara_mjx.runtime.files sees it, with no room for a checkpoint
     def __getattr__(self, name):
         return getattr(os, name)
 

@@ -43,7 +43,7 @@ import mara_mjx
 from mara_mjx.bench.env import check_drivers
 from mara_mjx.bench.runner import BenchConfig, Study
 from mara_mjx.envs.batched import BatchedEnv
-from mara_mjx.plots import finish_figure
+from mara_mjx.viz.plots import finish_figure
 
 
 @dataclasses.dataclass(frozen=True)

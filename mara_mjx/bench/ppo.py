@@ -44,7 +44,7 @@ work between calls (taking the snapshots, brax's host loop) counts; brax's own
 `training/sps` (epoch time only) is kept as `brax_reported_sps_median`.
 
 brax 0.14.2 calls `jax.device_put_replicated`, which JAX 0.10 removed; importing
-`mara_mjx.brax_env` provides JAX's documented drop-in replacement (and imports
+`mara_mjx.adapters.brax_env` provides JAX's documented drop-in replacement (and imports
 mujoco.mjx quietly, before brax does), so this module imports it before brax.
 """
 
@@ -66,9 +66,9 @@ from tqdm import tqdm
 
 import mara_mjx
 from mara_mjx.bench.runner import BenchConfig, Study
-from mara_mjx.plots import finish_figure
 from mara_mjx.ppo import PRESETS, EvalConfig, EvalResult, PPOConfig, make_policy, make_train
 from mara_mjx.ppo.evaluation import make_evaluate
+from mara_mjx.viz.plots import finish_figure
 
 COMPILE_EVENTS = "/jax/core/compile/"  # jaxpr trace, MLIR lowering, backend compile
 THRESHOLDS_MM = (5.0, 1.0)
@@ -288,7 +288,7 @@ def brax_kwargs(config: PPOConfig, episode_length: int) -> dict[str, Any]:
     GAE (ours: bootstrap from the final obs)."""
     import flax.linen as nn
 
-    import mara_mjx.brax_env  # noqa: F401  (before brax: quiet mujoco.mjx, JAX shim)
+    import mara_mjx.adapters.brax_env  # noqa: F401  (before brax: quiet mujoco.mjx, JAX shim)
 
     # isort: split
     from brax.training.agents.ppo import networks as ppo_networks
@@ -345,7 +345,7 @@ def train_brax(
     """brax's PPO on `make_brax_env(task)`, `config.num_updates` updates of the same
     batch as ours, one epoch (= snapshot) per `updates_per_call` updates. Returns the run
     and act(params, obs) -> joint targets (the deterministic brax policy, mapped)."""
-    from mara_mjx.brax_env import make_brax_env  # before brax: see the module docstring
+    from mara_mjx.adapters.brax_env import make_brax_env  # before brax: see the module docstring
 
     # isort: split
     from brax.training.agents.ppo import train as brax_ppo

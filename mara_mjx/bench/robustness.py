@@ -176,7 +176,7 @@ def train_argv(config: RobustnessConfig, task: str, recipe: str, out: Path) -> l
 def load_seeds(run: Path, seeds: list[int]) -> tuple[list[Any], dict[str, Any], list[Any]]:
     """(policies, the first seed's checkpoint meta, each seed's milestones) of a --seeds
     run folder: every seed's newest checkpoint."""
-    from mara_mjx import seeds as seeds_cli
+    from mara_mjx.cli import seeds as seeds_cli
     from mara_mjx.ppo import checkpoint as ckpt
     from mara_mjx.ppo.policy import policy_from_checkpoint
 
@@ -288,9 +288,9 @@ def judge_targets(env: Any, policy: Any, n: int, config: RobustnessConfig, orien
 
 def judge_real(meta: dict[str, Any], policy: Any, n: int, config: RobustnessConfig, orientation):
     """Per seed and velocity: the real driver on randomised physics draws."""
-    from mara_mjx import runs
     from mara_mjx.envs.random_target import is_random_target
     from mara_mjx.ppo.config import EvalConfig
+    from mara_mjx.runtime import runs
 
     eval_cfg = EvalConfig(
         episodes=config.draws, seed=config.eval_seed, tolerance_mm=0.0, rate_limit=config.rate_limit
@@ -464,7 +464,7 @@ def continue_argv(config: RobustnessConfig, job: Job) -> list[str]:
     without any checkpoint is the study's own and holds nothing: removed."""
     import shutil
 
-    from mara_mjx import seeds as seeds_cli
+    from mara_mjx.cli import seeds as seeds_cli
     from mara_mjx.ppo import checkpoint as ckpt
 
     if not job.out.exists():
@@ -519,9 +519,9 @@ def judge(config: RobustnessConfig, job: Job, timing: dict[str, Any]) -> list[di
     """Judge one trained job's seeds: the seed records and the metric records."""
     import jax
 
-    from mara_mjx import runs
     from mara_mjx.envs.random_target import is_random_target
     from mara_mjx.ppo.seed_eval import stack_policies
+    from mara_mjx.runtime import runs
 
     seeds = list(range(config.seed_offset, config.seed_offset + config.seeds))
     base = {"task": job.task, "recipe": job.recipe, "preset": job.preset, "command": job.command}
@@ -641,7 +641,7 @@ def plot(records: list[dict[str, Any]], title: str, path: Path) -> None:
     ax.set_xticks(range(len(groups)))
     ax.set_xticklabels([f"{t}\n{r}" for t, r in groups], fontsize=7)
     ax.set_yscale("log")
-    from mara_mjx.plots import finish_figure
+    from mara_mjx.viz.plots import finish_figure
 
     finish_figure(fig, ax, path, f"Robustness over seeds ({title})", "task / recipe",
                   "worst axis of the seed's mean error (mm)")  # fmt: skip

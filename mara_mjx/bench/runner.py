@@ -4,12 +4,12 @@ Every study (`mara_mjx.bench.<study>`) declares a `Study`: its config dataclass 
 `BenchConfig` subclass: one documented field per flag, validated in `__post_init__`,
 with `QUICK` overrides for a CPU smoke run), its `run(config) -> records` and its table
 spec. `main` (behind `python -m mara_mjx.benchmark STUDY`) generates each study's flags
-from its config (`mara_mjx.cli`), configures JAX, runs the study and writes
+from its config (`mara_mjx.cli.common`), configures JAX, runs the study and writes
 `<study>.json` (settings, versions, device, the command, the records), `<study>.md` (the
 table) and `<study>.png` into `--out`. Those three are checked before the study runs: an
 existing file is replaced only if it is that study's earlier output (and a full run's
 never by a --quick one), or with --overwrite; never a checkpoint or a run folder's file
-(`mara_mjx.outputs.check_output`).
+(`mara_mjx.runtime.outputs.check_output`).
 """
 
 from __future__ import annotations
@@ -28,10 +28,10 @@ from typing import Any, ClassVar, NamedTuple
 import jax
 import numpy as np
 
-from mara_mjx import files, outputs
-from mara_mjx.cli import UserError, configure_jax
+from mara_mjx.cli.common import UserError, configure_jax
 from mara_mjx.config import ConfigMixin, check_int
-from mara_mjx.plots import finish_figure
+from mara_mjx.runtime import files, outputs
+from mara_mjx.viz.plots import finish_figure
 
 TASKS = ("MARA", "MARAOrient", "MARACollision", "MARACollisionOrient")
 
@@ -236,7 +236,7 @@ def configure(
     `USER_ENV`."""
     import os
 
-    from mara_mjx import jax_cache
+    from mara_mjx.runtime import jax_cache
 
     for name in ("XLA_FLAGS", "XLA_PYTHON_CLIENT_PREALLOCATE"):
         USER_ENV[name] = os.environ.get(name)
@@ -269,7 +269,7 @@ def recorded_quick(path: Path) -> bool:
 
 def build_parser(description: str) -> argparse.ArgumentParser:
     """`STUDY [flags]`: one subcommand per study, flags generated from its config."""
-    from mara_mjx.cli import Section, add_cache_argument, add_flags
+    from mara_mjx.cli.common import Section, add_cache_argument, add_flags
 
     parser = argparse.ArgumentParser(
         prog="python -m mara_mjx.benchmark",
@@ -289,7 +289,7 @@ def build_parser(description: str) -> argparse.ArgumentParser:
 def resolve(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> BenchConfig:
     """The study's config: defaults, then QUICK if --quick, then the flags given; the
     output folder checked. Bad input exits 2 with one line (argparse's error)."""
-    from mara_mjx.cli import overrides
+    from mara_mjx.cli.common import overrides
 
     args = parser.parse_args(argv)
     study = load_study(args.study)

@@ -15,7 +15,7 @@ ppo   our PPO (`make_train(..., devices=n)`, the default preset), weak scaling: 
 
 Scaling efficiency of n devices = rate(n) / (n rate(1)) for weak scaling, and the same
 formula for strong scaling (the ideal is n times faster on the same batch). Sharding is
-`mara_mjx.sharding`: environments along one mesh axis, parameters replicated, SGD per
+`mara_mjx.runtime.sharding`: environments along one mesh axis, parameters replicated, SGD per
 device on its own envs' samples with one gradient all-reduce per minibatch.
 """
 
@@ -30,7 +30,7 @@ import jax
 
 import mara_mjx
 from mara_mjx.bench.runner import BenchConfig, Study
-from mara_mjx.plots import finish_figure
+from mara_mjx.viz.plots import finish_figure
 
 
 @dataclasses.dataclass(frozen=True)

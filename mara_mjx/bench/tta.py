@@ -43,7 +43,7 @@ limit    `mara_mjx.bench.limit.limit_study` (the limit study itself) for the tra
 Clocks. "From command start" is from the moment this process launches the subprocess
 (`time.monotonic()` just before `subprocess.Popen`). The CLI's own times (progress.csv's
 `time_s`, summary.json's `time_to_accuracy` and `command_time_s`) count from its
-process's start as the kernel records it (`mara_mjx.train._command_start`: /proc/PID/stat,
+process's start as the kernel records it (`mara_mjx.cli.train._command_start`: /proc/PID/stat,
 so interpreter start-up and imports count). This study reads the child's start the same
 way right after launching it; `launch_offset_s` = child's start - launch (milliseconds;
 slightly negative is possible, since /proc rounds the start down to a clock tick, the
@@ -74,9 +74,9 @@ import numpy as np
 
 from mara_mjx.bench.runner import USER_ENV, BenchConfig, Study
 from mara_mjx.config import check_int
-from mara_mjx.plots import finish_figure
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import logger
+from mara_mjx.viz.plots import finish_figure
 
 QUIET = ["--evaluate", "false", "--plots", "false", "--tensorboard", "false", "--progress", "false"]
 """As the hand-made measurement (benchmarks/results/time_to_accuracy/README.md)."""
@@ -153,8 +153,8 @@ def check_train_args(text: str, task: str, preset: str, build_env: bool = False)
     backend (and without that, this process would preallocate the GPU memory that the
     train commands it launches need: they then fail to compile)."""
     import mara_mjx
-    from mara_mjx import train as train_cli
-    from mara_mjx.cli import UserError
+    from mara_mjx.cli import train as train_cli
+    from mara_mjx.cli.common import UserError
 
     try:
         args = shlex.split(text)
@@ -211,7 +211,7 @@ def train_argv(config: TTAConfig, seed: int, out: Path, cache: str, total: int =
 def launch(argv: list[str], env: dict[str, str], log: Path, timeout_s: float) -> dict[str, Any]:
     """Run `argv` (output to `log`); `launch_offset_s` and `command_s` (module docstring).
     RuntimeError with the end of its output if it fails or runs out of time."""
-    from mara_mjx.train import _command_start
+    from mara_mjx.cli.train import _command_start
 
     with open(log, "w") as f:
         t0 = time.monotonic()

@@ -128,7 +128,7 @@ def _mjx():
 
 def _device() -> jax.Device:
     """This process's first device: MJX's default, jax.devices()[0], belongs to process 0
-    when several processes share a run (mara_mjx.distributed), and a jitted function
+    when several processes share a run (mara_mjx.runtime.distributed), and a jitted function
     cannot close over another process's arrays."""
     return jax.local_devices()[0]
 

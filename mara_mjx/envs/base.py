@@ -30,7 +30,7 @@ from flax import struct
 from mara_mjx.config import check_vector, is_finite
 from mara_mjx.envs.arm import MAX_JOINT_SPEED
 from mara_mjx.envs.randomize import RandomizeConfig
-from mara_mjx.rewards import RewardParams, check_reward_params
+from mara_mjx.envs.rewards import RewardParams, check_reward_params
 
 
 @runtime_checkable
@@ -159,7 +159,7 @@ class EnvConfig:
     """Target TCP orientation (w, x, y, z), normalised on use. Orient tasks only."""
     reward: RewardParams = dataclasses.field(default_factory=RewardParams)
     """Reward hyperparameters (alpha, beta, gamma, delta, eta, done), each within its
-    valid range (mara_mjx.rewards.RANGES; a clear error outside it)."""
+    valid range (mara_mjx.envs.rewards.RANGES; a clear error outside it)."""
     reset_noise: float = 0.0
     """Half-width (rad) of a uniform perturbation of the reset joint positions. 0 (the
     paper's reset, all joints at 0) for training; evaluation uses a small value so that
@@ -246,7 +246,8 @@ class EnvConfig:
             )
         if not isinstance(self.reward, RewardParams):
             raise ValueError(
-                f"reward must be a mara_mjx.rewards.RewardParams, got {type(self.reward).__name__}"
+                "reward must be a mara_mjx.envs.rewards.RewardParams, got "
+                f"{type(self.reward).__name__}"
             )
         check_reward_params(self.reward)  # also jax arrays, which RewardParams skips
 

@@ -17,7 +17,7 @@ measured by `benchmarks/profile_step.py` (see benchmarks/NOTES.md):
     predicate back to the host every step, which stalls the pipeline.
 
 Devices: `devices=None` (default) spreads the environments over every device
-(`mara_mjx.sharding`): the state is sharded along its leading (N,) axis, so num_envs
+(`mara_mjx.runtime.sharding`): the state is sharded along its leading (N,) axis, so num_envs
 must be a multiple of the device count; `devices=1` keeps everything on one device.
 """
 
@@ -27,8 +27,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from mara_mjx import sharding
 from mara_mjx.envs.base import Env, EnvParams, EnvState  # noqa: F401
+from mara_mjx.runtime import sharding
 
 
 @struct.dataclass

@@ -44,8 +44,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mara_mjx import rewards
-from mara_mjx.envs import ik
+from mara_mjx.envs import ik, rewards
 from mara_mjx.envs import randomize as rnd
 from mara_mjx.envs.arm import Arm, ArmPose, load_model
 from mara_mjx.envs.base import METRIC_KEYS, EnvConfig, EnvParams, EnvState

@@ -14,7 +14,7 @@ skipped, with a warning, by `find_checkpoint` on a run folder.
 
 Naming: <run folder>/checkpoints/ckpt_<update:08d>.npz. Loading a policy from a
 checkpoint is `mara_mjx.ppo.policy`'s; run folders (provenance, pruning, the env of a
-run) are `mara_mjx.runs`'.
+run) are `mara_mjx.runtime.runs`'.
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mara_mjx import files
-from mara_mjx.npzmeta import META_KEY, NPZ_ERRORS, read_npz_with_meta
+from mara_mjx.runtime import files
+from mara_mjx.runtime.npzmeta import META_KEY, NPZ_ERRORS, read_npz_with_meta
 
 FORMAT = "mara_mjx.ppo.checkpoint/1"
 CHECKPOINT_DIR = "checkpoints"

@@ -9,7 +9,7 @@
     default_preset(env_name) -> the train CLI's preset when none is given
 
 The CLIs (`python -m mara_mjx.train`, `python -m mara_mjx.evaluate`) generate one flag per
-field from these classes (`mara_mjx.cli`), with the field docstrings as help text; the
+field from these classes (`mara_mjx.cli.common`), with the field docstrings as help text; the
 shared config machinery (to_dict/from_dict/replace, validators) is `mara_mjx.config`.
 """
 
@@ -182,7 +182,7 @@ class PPOConfig(_ConfigMixin):
     it). A learnt step that would jump into the zone stops just inside its edge
     (task_space.stop_outside). Needs relative_actions, no max_joint_step, and a MARA
     observation without an orientation (on the Orient tasks ik_orient_first's 6-cm zone
-    is the same finish for the whole pose). Export: .npz keeps it (mara_mjx/ik_numpy.py);
+    is the same finish for the whole pose). Export: .npz keeps it (mara_mjx/deploy/ik_numpy.py);
     .onnx needs --drop_ik_finish (the learnt policy alone). 0: off."""
     probe_reach_steps: int = 0
     """> 0: every jitted call of the trainer ends with a deterministic rollout of the
@@ -218,7 +218,7 @@ class PPOConfig(_ConfigMixin):
     """Curriculum over the env's reward hyperparameters during training only, e.g.
     'beta=0.5,gamma=0.1': the rollouts start with these values and move linearly to the
     env's own by `train_reward_until` of the updates (the evaluation always uses the env's
-    own reward). '' is off. Names: the fields of mara_mjx.rewards.RewardParams."""
+    own reward). '' is off. Names: the fields of mara_mjx.envs.rewards.RewardParams."""
     train_reward_until: float = 0.5
     """Fraction of the updates after which `train_reward` has reached the env's values
     (and `train_collision_penalty` has reached 0)."""
@@ -464,7 +464,7 @@ class PPOConfig(_ConfigMixin):
 
 def reward_curriculum(text: str) -> dict[str, float]:
     """'beta=0.5,gamma=0.1' -> {'beta': 0.5, 'gamma': 0.1}; ValueError naming the problem."""
-    from mara_mjx.rewards import RewardParams
+    from mara_mjx.envs.rewards import RewardParams
 
     if not isinstance(text, str):
         raise ValueError(f"train_reward must be a string such as 'beta=0.5', got {text!r}")
@@ -551,7 +551,7 @@ class RunConfig(_ConfigMixin):
     each call, so wall-clock columns have this granularity."""
     devices: int = 0
     """Devices to spread the environments and the batch over (0 = all; see
-    mara_mjx.sharding). num_envs and the minibatch size must be multiples of it; the
+    mara_mjx.runtime.sharding). num_envs and the minibatch size must be multiples of it; the
     results match one device up to floating-point reduction order."""
     progress: bool = True
     """Show a progress bar (tqdm, on stderr)."""

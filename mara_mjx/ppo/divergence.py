@@ -3,7 +3,7 @@
 A diverged PPO run (NaN or inf parameters) trains on silently: its actions are NaN, the
 env replaces non-finite actions by holding the pose (spec section 3), so rewards,
 evaluation tables and checkpoints all look ordinary. The train CLI's host loops
-(`mara_mjx.train.train_loop`, `mara_mjx.seeds._loop`) call `check_finite` on every
+(`mara_mjx.cli.train.train_loop`, `mara_mjx.cli.seeds._loop`) call `check_finite` on every
 jitted call's result, after it returns and before anything of it is logged or saved:
 the run then ends with one message and exit status 1 (`Diverged`, a SystemExit), and
 the run folder's newest checkpoint, written from a state that passed this check, is the

@@ -6,7 +6,7 @@ resumed run, the time of the run up to the checkpoint plus that of the new comma
 updates of one jitted call share the call's time.
 
 A resumed run rewrites its progress.csv without the rows logged after its checkpoint:
-atomically (`mara_mjx.files.write_atomic`), so an interrupt or a crash mid-rewrite leaves
+atomically (`mara_mjx.runtime.files.write_atomic`), so an interrupt or a crash mid-rewrite leaves
 the old file whole. A progress.csv without an `update` column cannot be continued
 (`check_progress` says so before anything is rewritten).
 """
@@ -172,7 +172,7 @@ class RunLogger:
 
     def _rewrite(self, rows: list[dict[str, Any]]) -> None:
         """The header and `rows`, replacing the file atomically."""
-        from mara_mjx import files
+        from mara_mjx.runtime import files
 
         text = io.StringIO(newline="")
         self._write(text, rows, header=True)
@@ -293,7 +293,7 @@ def save_plots(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from mara_mjx import files
+    from mara_mjx.runtime import files
 
     progress = read_progress(csv_path)
     out_dir = Path(out_dir)

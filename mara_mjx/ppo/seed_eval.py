@@ -2,7 +2,7 @@
 
 `evaluate_seeds` runs the evaluation of `mara_mjx.ppo.evaluation` (the same episodes for
 every seed) for a policy with a leading seed axis in one vmapped program; `summarise`
-makes the summary a multi-seed run reports (`mara_mjx.seeds`): per seed the mean per axis
+makes the summary a multi-seed run reports (`mara_mjx.cli.seeds`): per seed the mean per axis
 of the final position (mm) and orientation (deg) errors, the episodes within the
 tolerance, the collisions and the time to 5 mm and 1 mm; across the seeds the mean and
 the worst seed per axis, the fewest episodes reached, the collisions and the median

@@ -264,9 +264,9 @@ def run(
     json_path: str | None,
 ) -> int:
     """The random-target branch of `python -m mara_mjx.evaluate` (flags already parsed)."""
-    from mara_mjx import files
-    from mara_mjx import runs as ckpt
-    from mara_mjx.cli import UserError
+    from mara_mjx.cli.common import UserError
+    from mara_mjx.runtime import files
+    from mara_mjx.runtime import runs as ckpt
 
     try:
         config = eval_config(eval_overrides)

@@ -1,6 +1,6 @@
 """Skip tracing the training program on a warm start: `trainer.run` kept as a `jax.export`.
 
-JAX's persistent compilation cache (mara_mjx.jax_cache) turns a warm start's XLA compile
+JAX's persistent compilation cache (mara_mjx.runtime.jax_cache) turns a warm start's XLA compile
 into a file read, but the program is still traced and lowered first: Python running the
 env, the networks and the PPO update through JAX, about 5 s for an `orient_first` run on
 a GPU host, most of what a warm start has left (benchmarks/NOTES.md sections 13 and 29).
@@ -46,7 +46,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from mara_mjx import files
+from mara_mjx.runtime import files
 
 FOLDER = "mara_mjx_export"
 FORMAT = 2  # 2: the key material in the header
@@ -86,7 +86,7 @@ def cache_key(trainer: Any, state: Any) -> str:
 
 def key_material(trainer: Any, state: Any) -> str:
     """JSON of everything the traced program depends on (module docstring)."""
-    from mara_mjx import runs  # here, not at the top: runs imports ppo.checkpoint
+    from mara_mjx.runtime import runs  # here, not at the top: runs imports ppo.checkpoint
 
     leaves, treedef = jax.tree.flatten(state)
     batched = trainer.env

@@ -39,8 +39,8 @@ import optax
 from flax import struct
 from jax.flatten_util import ravel_pytree
 
-from mara_mjx import sharding
 from mara_mjx.envs.batched import BatchedEnv, BatchedState
+from mara_mjx.envs.rewards import check_reward_value, collision_penalty
 from mara_mjx.ppo.config import PPOConfig, for_env, reward_curriculum
 from mara_mjx.ppo.losses import gae, ppo_loss
 from mara_mjx.ppo.networks import (
@@ -54,7 +54,7 @@ from mara_mjx.ppo.networks import (
     make_network,
     update_stats,
 )
-from mara_mjx.rewards import check_reward_value, collision_penalty
+from mara_mjx.runtime import sharding
 
 
 @struct.dataclass
@@ -169,7 +169,7 @@ def make_train(
     env: Any, config: PPOConfig, updates_per_call: int = 1, devices: int | None = None
 ) -> Trainer:
     """PPO on `config.num_envs` copies of `env` (any env BatchedEnv can wrap), over
-    `devices` devices (None or 0: all; see mara_mjx.sharding): environments, rollout and
+    `devices` devices (None or 0: all; see mara_mjx.runtime.sharding): environments, rollout and
     minibatches sharded along the env axis, parameters replicated, gradients averaged by
     one all-reduce per minibatch."""
     config = for_env(config, env)

@@ -23,7 +23,7 @@ mara_mjx.evaluate <out>` evaluates every seed's newest checkpoint (one vmapped p
 and prints and writes the same summary. Not with several processes (jax.distributed) nor
 with the envs of one seed over several devices (--devices > 1).
 
-The folder follows `mara_mjx.runs`' rules: --out must be new, empty or a multi-seed
+The folder follows `mara_mjx.runtime.runs`' rules: --out must be new, empty or a multi-seed
 run's folder; training locks it and every seed's folder; seeds.json is written first, so
 a run killed early is still known as one (and started over by the same command). A
 seeds.json whose seeds are not distinct ints >= 0 is refused with one line.
@@ -46,13 +46,13 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from mara_mjx import files, outputs, runs, sharding
-from mara_mjx.cli import UserError
+from mara_mjx.cli.common import UserError
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import logger, seed_eval
 from mara_mjx.ppo.divergence import check_finite
 from mara_mjx.ppo.policy import make_policy
 from mara_mjx.ppo.train import make_seed_trainer, take_seed
+from mara_mjx.runtime import files, outputs, runs, sharding
 
 SEEDS_JSON = "seeds.json"
 SEEDS_MD = "seeds.md"
@@ -164,7 +164,7 @@ class Lane:
     """One seed's run folder and host-side state."""
 
     seed: int
-    plan: Any  # mara_mjx.train.Plan of this seed alone
+    plan: Any  # mara_mjx.cli.train.Plan of this seed alone
     meta: dict[str, Any]
     progress: dict[str, Any]
     milestones: logger.Milestones

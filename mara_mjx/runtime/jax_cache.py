@@ -43,7 +43,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from mara_mjx import files
+from mara_mjx.runtime import files
 
 ENV_VAR = "MARA_MJX_COMPILATION_CACHE"
 MIN_COMPILE_TIME_S = 0.2

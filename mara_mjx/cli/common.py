@@ -152,7 +152,7 @@ class UserError(Exception):
 
 
 def add_cache_argument(parser: argparse.ArgumentParser, default: str = "true") -> None:
-    """`--compilation_cache {true,false,PATH}` (mara_mjx.jax_cache)."""
+    """`--compilation_cache {true,false,PATH}` (mara_mjx.runtime.jax_cache)."""
     parser.add_argument(
         "--compilation_cache",
         metavar="{true,false,PATH}",
@@ -186,13 +186,13 @@ def configure_jax(
       as before. Nothing is added when XLA_FLAGS already names either flag.
     * JAX's persistent compilation cache, on unless `compilation_cache` (the
       `--compilation_cache` flag; None: not given) or MARA_MJX_COMPILATION_CACHE turns it
-      off (`mara_mjx.jax_cache`). Returns the cache folder in use, or None.
+      off (`mara_mjx.runtime.jax_cache`). Returns the cache folder in use, or None.
     """
     import os
 
     import jax
 
-    from mara_mjx import jax_cache
+    from mara_mjx.runtime import jax_cache
 
     folder = jax_cache.configure(compilation_cache)
 

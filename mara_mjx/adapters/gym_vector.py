@@ -1,6 +1,6 @@
 """The vector half of the gymnasium adapter: `MaraVectorEnv`, N arms in one jitted
 `mara_mjx.BatchedEnv` call per step, with gymnasium's NEXT_STEP (default) or SAME_STEP
-autoreset (see `mara_mjx.gym`'s docstring for both, and for the ids:
+autoreset (see `mara_mjx.adapters.gym`'s docstring for both, and for the ids:
 `gymnasium.make_vec("mara_mjx/MARA-v0", num_envs=N, vectorization_mode="vector_entry_point")`
 builds one).
 """
@@ -17,8 +17,8 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from mara_mjx.adapters.gym import _check_render_mode, _numpy_info, _spaces, check_action
 from mara_mjx.envs import BatchedEnv, make
-from mara_mjx.gym import _check_render_mode, _numpy_info, _spaces, check_action
 
 AUTORESET_MODES = {"next_step": AutoresetMode.NEXT_STEP, "same_step": AutoresetMode.SAME_STEP}
 

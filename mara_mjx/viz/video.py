@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from mara_mjx import files
-from mara_mjx.cli import UserError
+from mara_mjx.cli.common import UserError
+from mara_mjx.runtime import files
 
 VIDEO_MAGIC = {".mp4": (4, b"ftyp"), ".gif": (0, b"GIF8")}
 

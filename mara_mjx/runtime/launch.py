@@ -1,6 +1,6 @@
 """How a process joins a multi-process training run: the train CLI's launch flags, their
 MARA_* environment variables and SLURM detection (`launch_from`), as a `Launch`.
-`mara_mjx.distributed` starts JAX's distributed runtime from it, and then a `Watchdog`
+`mara_mjx.runtime.distributed` starts JAX's distributed runtime from it, and then a `Watchdog`
 that ends this process with one line when a peer stops beating.
 
     python -m mara_mjx.train ... --coordinator host0:1234 --num_processes 2 --process_id 0
@@ -18,7 +18,7 @@ import threading
 import time
 from typing import Any
 
-from mara_mjx.cli import UserError
+from mara_mjx.cli.common import UserError
 
 MODES = ("auto", "off")
 ENV_VARS = {

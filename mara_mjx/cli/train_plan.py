@@ -16,8 +16,8 @@ from pathlib import Path
 from typing import Any
 
 import mara_mjx
-from mara_mjx import distributed, runs, seeds
-from mara_mjx.cli import (
+from mara_mjx.cli import seeds
+from mara_mjx.cli.common import (
     Section,
     UserError,
     add_cache_argument,
@@ -29,9 +29,10 @@ from mara_mjx.cli import (
 )
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.envs.randomize import RandomizeConfig
+from mara_mjx.envs.rewards import RewardParams
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo.config import PRESETS, EvalConfig, PPOConfig, RunConfig, default_preset
-from mara_mjx.rewards import RewardParams
+from mara_mjx.runtime import distributed, runs
 
 SECTIONS = (
     Section("ppo", PPOConfig, defaults=PRESETS["default"]),

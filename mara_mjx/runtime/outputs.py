@@ -17,9 +17,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from mara_mjx import files
-from mara_mjx.npzmeta import NPZ_ERRORS, read_npz_with_meta
 from mara_mjx.ppo.checkpoint import CHECKPOINT_DIR, FORMAT
+from mara_mjx.runtime import files
+from mara_mjx.runtime.npzmeta import NPZ_ERRORS, read_npz_with_meta
 
 
 def check_not_checkpoint(path: str | os.PathLike, what: str) -> None:
@@ -47,7 +47,7 @@ def check_not_checkpoint(path: str | os.PathLike, what: str) -> None:
 RUN_FILES = ("config.json", "progress.csv", "eval.json", "summary.json")
 """A run folder's own files (besides checkpoints/, tb/ and plots/)."""
 GROUP_FILES = ("seeds.json", "seeds.md")
-"""A multi-seed run folder's own files (mara_mjx.seeds)."""
+"""A multi-seed run folder's own files (mara_mjx.cli.seeds)."""
 LOCK = ".lock"
 """The lock file of a run folder while a process trains it (files.FolderLock)."""
 
@@ -114,7 +114,7 @@ def check_output(
     (the CLI's --overwrite) allows replacing any other existing file. Never allowed: a
     folder, a checkpoint, a file of a run folder (module docstring). The folder must be
     writable (it is created if missing)."""
-    from mara_mjx.cli import UserError
+    from mara_mjx.cli.common import UserError
 
     path = Path(path)
     if path.is_dir():

@@ -2,7 +2,7 @@
 
 Every process runs the same command; JAX's distributed runtime joins them into one
 program whose devices are every process's devices (`jax.devices()`), so the mesh of
-mara_mjx.sharding spans them all and each process steps its own devices' share of the
+mara_mjx.runtime.sharding spans them all and each process steps its own devices' share of the
 environments. How a process joins (flags; each also read from an environment variable):
 
     --coordinator HOST:PORT   MARA_COORDINATOR     process 0's address (it serves there)
@@ -69,8 +69,8 @@ from typing import Any
 
 import numpy as np
 
-from mara_mjx.cli import run_cli as run_user_cli
-from mara_mjx.launch import (  # noqa: F401  (re-exported: the CLI's launch flags)
+from mara_mjx.cli.common import run_cli as run_user_cli
+from mara_mjx.runtime.launch import (  # noqa: F401  (re-exported: the CLI's launch flags)
     ENV_VARS,
     MODES,
     DistributedError,

@@ -1,6 +1,6 @@
 """A mara_mjx env as a brax environment, so brax's PPO can train on it.
 
-    from mara_mjx.brax_env import make_brax_env   # first: JAX shim, quiet mujoco.mjx
+    from mara_mjx.adapters.brax_env import make_brax_env   # first: JAX shim, quiet mujoco.mjx
     from brax.training.agents.ppo import train as ppo
 
     env = make_brax_env("MARACollision")          # a brax.envs.base.Env
@@ -65,7 +65,7 @@ except ImportError as e:  # brax is an optional extra
     if (getattr(e, "name", None) or "brax").split(".")[0] != "brax":
         raise  # not brax itself (mujoco.mjx, say): its own error
     raise ImportError(
-        "mara_mjx.brax_env needs brax: pip install 'mara_mjx[brax]' (or brax==0.14.2)"
+        "mara_mjx.adapters.brax_env needs brax: pip install 'mara_mjx[brax]' (or brax==0.14.2)"
     ) from e
 
 import mara_mjx

@@ -105,7 +105,7 @@ def check_reward_value(name: str, value: Any) -> None:
         shown = repr(bad[0]) if values.size == 1 else f"{bad[0]!r} (one of {values.size} values)"
         raise ValueError(
             f"reward.{name}={shown} is outside its valid range "
-            f"{RANGES[name]} (finite numbers only; why: mara_mjx.rewards)"
+            f"{RANGES[name]} (finite numbers only; why: mara_mjx.envs.rewards)"
         )
 
 

@@ -19,8 +19,8 @@ What the CLIs write, and what they never replace:
   checkpoint of the same run (env, env config and PPO config as its config.json):
   another run's or another task's checkpoint is refused. On taking the lock, training
   deletes the temporary files a killed writer left in the folder (`.<name>.<hex>.tmp`).
-* An output a user points somewhere: `mara_mjx.outputs`.
-* Every rewrite is atomic (`mara_mjx.files`): a reader, a crash or Ctrl-C finds the old
+* An output a user points somewhere: `mara_mjx.runtime.outputs`.
+* Every rewrite is atomic (`mara_mjx.runtime.files`): a reader, a crash or Ctrl-C finds the old
   file or the new one. A write that fails (a full disk) is one line naming the file.
 """
 
@@ -39,20 +39,20 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from mara_mjx import files
-from mara_mjx.outputs import (
+from mara_mjx.ppo.checkpoint import (
+    CHECKPOINT_DIR,
+    CheckpointError,
+    list_checkpoints,
+    load_checkpoint,
+)
+from mara_mjx.runtime import files
+from mara_mjx.runtime.outputs import (
     LOCK,
     RUN_FILES,
     is_empty,
     is_group_folder,
     is_run_folder,
     read_json,
-)
-from mara_mjx.ppo.checkpoint import (
-    CHECKPOINT_DIR,
-    CheckpointError,
-    list_checkpoints,
-    load_checkpoint,
 )
 
 
@@ -175,7 +175,7 @@ def make_env(meta: dict[str, Any], **overrides: Any):
 
 
 def write_json(path: str | os.PathLike, data: Any) -> Path:
-    """Write `data` as indented JSON, atomically (mara_mjx.files; files.WriteError if it
+    """Write `data` as indented JSON, atomically (mara_mjx.runtime.files; files.WriteError if it
     cannot)."""
     return files.write_atomic(path, json.dumps(data, indent=2) + "\n")
 
@@ -208,7 +208,7 @@ def claim_folder(out: Path, what: str = "run folder") -> files.FolderLock:
     """Lock `out` for this process (creating it); UserError if it cannot be written or
     another process holds it. The caller keeps the returned lock for as long as it writes
     there (it is dropped when the process ends, whatever the cause)."""
-    from mara_mjx.cli import UserError
+    from mara_mjx.cli.common import UserError
 
     lock = files.FolderLock(out, LOCK)
     try:
@@ -237,7 +237,7 @@ def prepare_run_folder(
     UserError when it is not writable, is in use, is not a mara_mjx run folder, or would
     mix a new run or another run's checkpoint into an existing one. Returns the lock,
     which the caller holds while it trains."""
-    from mara_mjx.cli import UserError
+    from mara_mjx.cli.common import UserError
     from mara_mjx.ppo import logger
 
     out = Path(out)

@@ -1,5 +1,5 @@
 """Gymnasium adapter: the MARA tasks as `gymnasium.Env` (here) and
-`gymnasium.vector.VectorEnv` (`mara_mjx.gym_vector.MaraVectorEnv`), and the ids.
+`gymnasium.vector.VectorEnv` (`mara_mjx.adapters.gym_vector.MaraVectorEnv`), and the ids.
 
 Host side, numpy in and out; the physics runs in JAX (jitted once per instance).
 
@@ -41,7 +41,7 @@ from it, so `reset_noise > 0` gives different episodes. `reset(options={...})` a
 the traced params of `env.make_params` (target_pos, target_quat, velocity, reset_noise,
 alpha, beta, gamma, delta, eta, done): they change without recompiling.
 
-Rendering (`MaraGymEnv` only; C MuJoCo on the host, `mara_mjx.render`):
+Rendering (`MaraGymEnv` only; C MuJoCo on the host, `mara_mjx.viz.render`):
 `render_mode="rgb_array"`: `render()` returns a (height, width, 3) uint8 frame (640 x 480
 unless `width=`/`height=` are given; `camera=` a model camera name, default a free camera
 on the workspace) of the arm at the current joint positions, with the TCP site and the
@@ -178,12 +178,12 @@ class MaraGymEnv(gymnasium.Env):
         self.observation_space, self.action_space = _spaces(self.env)
         self._renderer = self._viewer = None
         if render_mode == "rgb_array":
-            from mara_mjx.render import ArmRenderer
+            from mara_mjx.viz.render import ArmRenderer
 
             self._renderer = ArmRenderer(width, height, camera)  # no GL context yet
             self._render_args = (width, height, camera)
         elif render_mode == "human":
-            from mara_mjx.render import check_display
+            from mara_mjx.viz.render import check_display
 
             check_display()  # the window itself opens at the first render()
         self._jit_reset = jax.jit(self.env.reset)
@@ -246,13 +246,13 @@ class MaraGymEnv(gymnasium.Env):
         """rgb_array: (height, width, 3) uint8 frame of the arm at the current joint
         positions with the target marker at the episode's target (after a step that
         collided, the pose it collided in, not the reset pose the env put the arm back
-        at: `mara_mjx.render.pose_reached`). human: update the viewer, return None. No
+        at: `mara_mjx.viz.render.pose_reached`). human: update the viewer, return None. No
         render_mode: None."""
         if self.render_mode is None:
             return None
         if self.state is None:
             raise gymnasium.error.ResetNeeded("call reset() before render()")
-        from mara_mjx.render import pose_reached
+        from mara_mjx.viz.render import pose_reached
 
         s = self.state
         q, obs, collided, terminated, target_pos, target_quat = jax.device_get(
@@ -262,12 +262,12 @@ class MaraGymEnv(gymnasium.Env):
         q = pose_reached(q, obs, collided, terminated)  # not the post-collision reset pose
         if self.render_mode == "rgb_array":
             if self._renderer is None:  # after close()
-                from mara_mjx.render import ArmRenderer
+                from mara_mjx.viz.render import ArmRenderer
 
                 self._renderer = ArmRenderer(*self._render_args)
             return self._renderer.frame(q, target_pos, target_quat)
         if self._viewer is None:
-            from mara_mjx.render import Viewer
+            from mara_mjx.viz.render import Viewer
 
             self._viewer = Viewer()
         self._viewer.show(q, target_pos, target_quat)
@@ -294,8 +294,8 @@ def register_gym_id(task: str) -> str:
     if env_id not in gymnasium.registry:
         gymnasium.register(
             id=env_id,
-            entry_point="mara_mjx.gym:MaraGymEnv",
-            vector_entry_point="mara_mjx.gym_vector:MaraVectorEnv",
+            entry_point="mara_mjx.adapters.gym:MaraGymEnv",
+            vector_entry_point="mara_mjx.adapters.gym_vector:MaraVectorEnv",
             max_episode_steps=None,
             kwargs={"task": task},
         )

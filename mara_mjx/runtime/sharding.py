@@ -23,7 +23,7 @@ With one device `make_mesh` returns None, `constrain` and `pmean` are the identi
 `map_envs(f)` is `f`: the single-device program has no annotations at all.
 
 Several processes (hosts): after `jax.distributed.initialize()` in every process (the
-train CLI does it, mara_mjx.distributed), `jax.devices()` lists every process's devices
+train CLI does it, mara_mjx.runtime.distributed), `jax.devices()` lists every process's devices
 and the same code runs everywhere, each process stepping its own devices' share of the
 environments. A jitted function must not close over an array on another process's
 device: MJX's default device, `jax.devices()[0]`, is process 0's, so the arm's model is

@@ -1,0 +1,418 @@
+"""Export a trained policy for use outside JAX: one .npz file, a pure-numpy policy, or
+an ONNX model (the suffix chooses).
+
+    python -m mara_mjx.export runs/MARA-.../ OUT.npz        # newest checkpoint of a run
+    python -m mara_mjx.export runs/MARA-.../checkpoints/ckpt_00000100.npz OUT.npz
+    python -m mara_mjx.export runs/MARA-.../ OUT.onnx       # ONNX (pip install ".[onnx]")
+    python -m mara_mjx.export runs/MARA-.../ OUT.onnx --drop_ik_finish  # MARA's preset
+
+    from mara_mjx.cli.export import load_exported
+    policy = load_exported("OUT.npz")
+    action = policy(obs)          # (obs_size,) or (N, obs_size) -> (..., 6) rad, numpy only
+
+What `policy(obs)` computes is what `mara_mjx.ppo.make_policy` computes (the
+deterministic Gaussian mean): z = clip((obs - mean) / sqrt(var + 1e-8), -obs_clip,
+obs_clip) when the run normalised observations (else z = obs), where obs first has its
+quaternion block obs[quat_index:quat_index + 4] multiplied by the sign of its w when the
+run used `canonical_quat` (quat_index >= 0 in the meta), z[..., hidden_obs] = 0,
+then the actor's tanh MLP (linear output layer), plus obs[..., :6] (the current joint
+positions) when the run used `relative_actions`; a policy with an IK finish
+(PPOConfig.ik_finish; format mara_mjx.export/2, meta "ik_finish") first replaces that
+displacement near the target by the IK step (mara_mjx/deploy/ik_numpy.py). The action is an
+absolute joint target (rad) for motor1..motor6; the env clips it to the joint limits
+(`policy(obs, clip=True)` does the same here). The .onnx file computes the same graph
+without a finish (`mara_mjx/deploy/onnx_policy.py`; a policy with one is refused): input "obs"
+(N, obs_size) float32, outputs "action" and "action_clipped" (N, 6) rad.
+
+File layout (`np.load(path)`; no pickles):
+    layer_<i>/kernel   (in, out) float32, i = 0 .. len(hidden_sizes)   y = x @ kernel + bias
+    layer_<i>/bias     (out,) float32
+    obs_mean, obs_var  (obs_size,) float32, only when the run normalised observations
+    __meta__           JSON: format, env_name, env_config, observation_size, action_size,
+                       hidden_sizes, activation, normalize_obs, obs_clip, obs_var_eps,
+                       relative_actions (add obs[..., :action_size] to the MLP output),
+                       max_joint_step (> 0: the MLP output d becomes m tanh(d / m) first),
+                       ik_finish (the IK finish of PPOConfig.ik_finish: its radius, the
+                       arm's chain and task_space's constants; mara_mjx/deploy/ik_numpy.py runs
+                       it on the MLP's joint displacement before q is added),
+                       ik_finish_dropped (m; > 0: the checkpoint's IK finish within that
+                       distance of the target is not in this file: --drop_ik_finish),
+                       hidden_obs (indices set to 0 after normalisation),
+                       quat_index (-1, or where the sign-canonicalised quaternion starts),
+                       observation_layout [{name, start, stop, units, description}],
+                       action {joint_names, lower, upper, units, description},
+                       source {checkpoint, update, env_steps}
+
+The output is written atomically and never replaces a checkpoint (any file of a
+`checkpoints/` folder, or a mara_mjx checkpoint anywhere) or a run folder's own file; an
+existing file only if it is an exported policy (exporting again replaces it), or with
+`--overwrite` (`mara_mjx.runtime.outputs.check_output`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mara_mjx.runtime import files
+from mara_mjx.runtime.npzmeta import META_KEY, NPZ_ERRORS, read_npz_with_meta
+
+FORMAT = "mara_mjx.export/1"
+FORMAT_FINISH = "mara_mjx.export/2"
+"""The format of a file that keeps an IK finish (meta "ik_finish"): a reader of /1 alone
+would run the policy without it, so such files say /2 and older readers refuse them."""
+FORMATS = (FORMAT, FORMAT_FINISH)
+SUFFIXES = (".npz", ".onnx")
+OBS_VAR_EPS = 1e-8  # mara_mjx.ppo.networks.normalize
+PROG = "python -m mara_mjx.export"
+
+
+class ExportError(ValueError):
+    """A missing or corrupt checkpoint or exported file, or an output that cannot be written."""
+
+
+def export_policy(
+    checkpoint: str | os.PathLike,
+    out_path: str | os.PathLike,
+    drop_ik_finish: bool = False,
+    overwrite: bool = False,
+) -> Path:
+    """Write the deterministic policy of `checkpoint` (a checkpoint file, or a run folder:
+    its newest checkpoint) to `out_path`, atomically: .npz (numpy) or .onnx (an ONNX
+    model, needs the `onnx` package). A policy with an IK finish (PPOConfig.ik_finish, the
+    position tasks' presets) keeps it in .npz (the arm's chain in the meta's ik_finish,
+    run by mara_mjx/deploy/ik_numpy.py); .onnx refuses it unless `drop_ik_finish`, which writes
+    the learnt policy alone (the meta's ik_finish_dropped says so) in either format. An
+    existing `out_path` is replaced only if it is an exported policy, or with
+    `overwrite`; never a checkpoint or a run folder's file (module docstring). Raises
+    ExportError (or mara_mjx.ppo.CheckpointError, also a ValueError) with what is
+    wrong."""
+    import mara_mjx
+    from mara_mjx.envs.arm import JOINTS
+    from mara_mjx.ppo import checkpoint as ckpt
+    from mara_mjx.ppo import policy as policy_io
+    from mara_mjx.runtime import outputs, runs
+
+    out_path = Path(out_path)
+    if out_path.suffix not in SUFFIXES:
+        raise ExportError(f"output {str(out_path)!r} must end in .npz or .onnx")
+    if out_path.suffix == ".onnx":
+        try:
+            import onnx  # noqa: F401
+        except ImportError as e:
+            raise ExportError(
+                "writing .onnx needs the onnx package: pip install 'mara_mjx[onnx]' "
+                "(or pip install onnx)"
+            ) from e
+    from mara_mjx.cli.common import UserError
+
+    try:
+        outputs.check_output(out_path, "export output", is_exported, overwrite)
+    except UserError as e:
+        raise ExportError(str(e)) from e
+    source = ckpt.find_checkpoint(checkpoint)
+    arrays, meta = ckpt.load_checkpoint(source)
+    policy = policy_io.policy_from_checkpoint(arrays, meta)
+    config = policy.config
+    # options whose actions need the arm's Jacobian, which the numpy/ONNX MLP does not have
+    for option, value in (
+        ("ik_prior", getattr(config, "ik_prior", "")),
+        ("task_space_actions", getattr(config, "task_space_actions", False)),
+    ):
+        if value:
+            raise ExportError(
+                f"{str(source)!r} was trained with {option}={value!r}, which needs the arm's "
+                "Jacobian (mara_mjx.envs.task_space); .npz/.onnx export supports joint-space "
+                "policies only. Use mara_mjx.ppo.load_policy(checkpoint) in JAX instead, or "
+                "train with --preset default (joint-space; the Orient tasks' default preset, "
+                "orient_first, uses ik_prior)"
+            )
+
+    finish = float(getattr(config, "ik_finish", 0.0))
+    if finish > 0.0 and out_path.suffix == ".onnx" and not drop_ik_finish:
+        raise ExportError(
+            f"{str(source)!r} ends its reach with an IK finish (ik_finish={finish} m), which "
+            "needs the arm's forward kinematics and Jacobian (mara_mjx.envs.task_space."
+            "finish_step); the .onnx graph carries the learnt joint-space policy only. "
+            "Export .npz (its numpy policy runs the finish), pass --drop_ik_finish to export "
+            "the learnt policy alone (its last step into a 5 mm box then lands a few mm off: "
+            "README, Training), or use mara_mjx.ppo.load_policy(checkpoint) in JAX"
+        )
+    keep_finish = finish > 0.0 and not drop_ik_finish
+
+    env_name, env_config = meta["env_name"], meta["env_config"]
+    try:
+        overrides = {**runs.env_overrides(env_config), "check_target": False}
+        env = mara_mjx.make(env_name, **overrides)
+    except (ValueError, TypeError) as e:
+        raise ExportError(
+            f"cannot rebuild env {env_name!r} of the checkpoint (needed for the observation "
+            f"layout and the joint limits): {e}"
+        ) from e
+    if env.observation_size != meta["observation_size"]:
+        raise ExportError(
+            f"env {env_name!r} has observation size {env.observation_size}, but the checkpoint "
+            f"was trained on {meta['observation_size']}"
+        )
+    out: dict[str, np.ndarray] = {}
+    actor = policy.params["params"]["actor"]
+    n_layers = len(config.hidden_sizes) + 1
+    for i in range(n_layers):
+        layer = actor[f"Dense_{i}"]
+        out[f"layer_{i}/kernel"] = np.asarray(layer["kernel"], np.float32)
+        out[f"layer_{i}/bias"] = np.asarray(layer["bias"], np.float32)
+    if policy.obs_stats is not None:
+        out["obs_mean"] = np.asarray(policy.obs_stats.mean, np.float32)
+        out["obs_var"] = np.asarray(policy.obs_stats.var, np.float32)
+    progress = meta.get("progress", {})
+    export_meta = {
+        "format": FORMAT_FINISH if keep_finish else FORMAT,
+        "env_name": env_name,
+        "env_config": env_config,
+        "observation_size": int(meta["observation_size"]),
+        "action_size": int(meta["action_size"]),
+        "hidden_sizes": list(config.hidden_sizes),
+        "activation": "tanh",
+        "normalize_obs": policy.obs_stats is not None,
+        "obs_clip": float(config.obs_clip),
+        "obs_var_eps": OBS_VAR_EPS,
+        "relative_actions": bool(config.relative_actions),
+        "max_joint_step": float(getattr(config, "max_joint_step", 0.0)),
+        "ik_finish_dropped": 0.0 if keep_finish else finish,
+        "hidden_obs": [int(i) for i in config.hidden_obs],
+        "quat_index": int(config.quat_index) if config.canonical_quat else -1,
+        "observation_layout": env.observation_layout,
+        "action": {
+            "joint_names": list(JOINTS),
+            "lower": [float(x) for x in env.joint_lower],
+            "upper": [float(x) for x in env.joint_upper],
+            "units": "rad",
+            "description": "absolute joint position targets; the env clips them to [lower, upper]",
+        },
+        "source": {
+            "checkpoint": str(source.resolve()),
+            "update": progress.get("update"),
+            "env_steps": progress.get("env_steps"),
+        },
+    }
+    if keep_finish:  # the numpy policy runs it (mara_mjx/deploy/ik_numpy.py)
+        from mara_mjx.deploy.ik_numpy import finish_meta
+
+        export_meta["ik_finish"] = finish_meta(finish)
+    out[META_KEY] = np.array(json.dumps(export_meta))
+    if out_path.suffix == ".onnx":
+        from mara_mjx.deploy import onnx_policy
+
+        _write_atomic(out_path, lambda f: onnx_policy.save(_from_arrays(out, export_meta), f))
+    else:
+        _write_atomic(out_path, lambda f: np.savez(f, **out))
+    return out_path
+
+
+def is_exported(path: Path) -> bool:
+    """True if `path` is a policy file this module wrote (.npz or .onnx)."""
+    if path.suffix == ".onnx":
+        try:
+            import onnx
+
+            model = onnx.load(str(path), load_external_data=False)
+        except Exception:  # not ONNX, or no onnx package: not known to be ours
+            return False
+        return any(p.key == "mara_mjx" for p in model.metadata_props)
+    try:
+        _, meta = read_npz_with_meta(path)
+    except NPZ_ERRORS:
+        return False
+    return isinstance(meta, dict) and meta.get("format") in FORMATS
+
+
+def _write_atomic(path: Path, write: Any) -> None:
+    """write(binary file) to `path` atomically (runtime/files.py); ExportError if it cannot."""
+    try:
+        files.write_atomic(path, write)
+    except OSError as e:
+        raise ExportError(f"cannot write {str(path)!r}: {e}") from e
+
+
+@dataclasses.dataclass(frozen=True)
+class NumpyPolicy:
+    """The exported deterministic policy, numpy only. `policy(obs)` -> action (rad)."""
+
+    kernels: tuple[np.ndarray, ...]
+    """(in, out) per layer; tanh after every layer but the last."""
+    biases: tuple[np.ndarray, ...]
+    obs_mean: np.ndarray | None
+    """(obs_size,) or None when the run did not normalise observations."""
+    obs_var: np.ndarray | None
+    meta: dict[str, Any]
+    """The file's metadata (see the module docstring)."""
+
+    @property
+    def observation_size(self) -> int:
+        return int(self.meta["observation_size"])
+
+    @property
+    def action_size(self) -> int:
+        return int(self.meta["action_size"])
+
+    @property
+    def env_name(self) -> str:
+        return str(self.meta["env_name"])
+
+    @property
+    def joint_lower(self) -> np.ndarray:
+        """(6,) rad."""
+        return np.asarray(self.meta["action"]["lower"], np.float32)
+
+    @property
+    def joint_upper(self) -> np.ndarray:
+        """(6,) rad."""
+        return np.asarray(self.meta["action"]["upper"], np.float32)
+
+    @property
+    def observation_layout(self) -> dict[str, slice]:
+        """Observation part name -> slice of the last axis."""
+        return {p["name"]: slice(p["start"], p["stop"]) for p in self.meta["observation_layout"]}
+
+    @functools.cached_property
+    def _finish(self) -> Any:
+        """The meta's IK finish, built once (ik_numpy.NumpyFinish), or None."""
+        if not self.meta.get("ik_finish"):
+            return None
+        from mara_mjx.deploy.ik_numpy import NumpyFinish
+
+        return NumpyFinish(self.meta["ik_finish"])
+
+    def __call__(self, obs: Any, clip: bool = False) -> np.ndarray:
+        """obs (..., obs_size) raw observation -> action (..., action_size) float32 rad.
+        `clip`: clip to the joint limits as the env does (make_policy does not)."""
+        x = np.asarray(obs)
+        if x.dtype.kind not in "biuf":
+            raise ValueError(f"obs must be numeric, got dtype {x.dtype}")
+        if x.ndim < 1 or x.shape[-1] != self.observation_size:
+            raise ValueError(
+                f"obs must have shape (..., {self.observation_size}) for {self.env_name}, "
+                f"got {x.shape}"
+            )
+        x = raw = x.astype(np.float64)
+        quat = int(self.meta.get("quat_index", -1))
+        if quat >= 0:  # canonical sign, w >= 0 (PPOConfig.canonical_quat)
+            x = x.copy()
+            sign = np.where(x[..., quat : quat + 1] < 0, -1.0, 1.0)
+            x[..., quat : quat + 4] *= sign
+        if self.obs_mean is not None:
+            clip_obs = float(self.meta["obs_clip"])
+            x = (x - self.obs_mean) / np.sqrt(self.obs_var.astype(np.float64) + OBS_VAR_EPS)
+            x = np.clip(x, -clip_obs, clip_obs)
+        hidden = self.meta.get("hidden_obs", [])
+        if hidden:
+            x = x.copy()
+            x[..., hidden] = 0.0
+        for i, (kernel, bias) in enumerate(zip(self.kernels, self.biases, strict=True)):
+            x = x @ kernel.astype(np.float64) + bias
+            if i < len(self.kernels) - 1:
+                x = np.tanh(x)
+        if self.meta.get("relative_actions", False):
+            step = float(self.meta.get("max_joint_step", 0.0))
+            if step > 0.0:  # PPOConfig.max_joint_step
+                x = step * np.tanh(x / step)
+            if self._finish is not None:  # PPOConfig.ik_finish (mara_mjx/deploy/ik_numpy.py)
+                x = self._finish(raw[..., : self.action_size], raw[..., 6:9], x)
+            x = x + raw[..., : self.action_size]
+        if clip:
+            x = np.clip(x, self.joint_lower, self.joint_upper)
+        return x.astype(np.float32)
+
+
+def load_exported(path: str | os.PathLike) -> NumpyPolicy:
+    """The `NumpyPolicy` of a file written by `export_policy`; ExportError if missing,
+    corrupt or not such a file."""
+    path = Path(path)
+    if not path.is_file():
+        raise ExportError(f"exported policy {str(path)!r} does not exist (or is not a file)")
+    try:
+        arrays, meta = read_npz_with_meta(path)
+    except NPZ_ERRORS as e:
+        raise ExportError(
+            f"{str(path)!r} is corrupt or not an exported mara_mjx policy: {e}"
+        ) from e
+    if not isinstance(meta, dict) or meta.get("format") not in FORMATS:
+        found = meta.get("format") if isinstance(meta, dict) else None
+        raise ExportError(f"{str(path)!r} has format {found!r}, expected one of {FORMATS}")
+    return _from_arrays(arrays, meta, str(path))
+
+
+def _from_arrays(arrays: Any, meta: dict[str, Any], where: str = "the export") -> NumpyPolicy:
+    n_layers = len(meta["hidden_sizes"]) + 1
+    try:
+        kernels = tuple(arrays[f"layer_{i}/kernel"] for i in range(n_layers))
+        biases = tuple(arrays[f"layer_{i}/bias"] for i in range(n_layers))
+        stats = (arrays["obs_mean"], arrays["obs_var"]) if meta["normalize_obs"] else (None, None)
+    except KeyError as e:
+        raise ExportError(f"{where!r} lacks the array {e}") from e
+    if (
+        kernels[0].shape[0] != meta["observation_size"]
+        or kernels[-1].shape[1] != (meta["action_size"])
+    ):
+        raise ExportError(f"{where!r}: layer shapes do not match the observation/action sizes")
+    return NumpyPolicy(kernels, biases, stats[0], stats[1], meta)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from mara_mjx.cli.common import add_deprecated_alias
+
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+    parser.add_argument("checkpoint", help="checkpoint .npz file, or a run folder (its newest)")
+    parser.add_argument("out", help="output file: .npz (numpy) or .onnx (ONNX)")
+    parser.add_argument(
+        "--drop_ik_finish",
+        action="store_true",
+        help="export a policy with an IK finish (ik_finish, the position tasks' presets) "
+        "without it: the learnt joint-space policy alone (.onnx needs it; .npz keeps the "
+        "finish otherwise)",
+    )
+    add_deprecated_alias(parser, "--drop-ik-finish", "--drop_ik_finish", PROG)
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace OUT even if it is not an exported policy (never a checkpoint or a "
+        "run folder's own file)",
+    )
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    from mara_mjx.cli.common import UserError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        out = export_policy(args.checkpoint, args.out, args.drop_ik_finish, args.overwrite)
+        if out.suffix == ".onnx":
+            print(f"wrote {out}: ONNX (opset 17), input obs (N, obs_size) float32, outputs "
+                  "action and action_clipped (N, 6) rad")  # fmt: skip
+            return 0
+        policy = load_exported(out)
+    except ExportError as e:
+        raise UserError(str(e)) from e
+    norm = "with" if policy.obs_mean is not None else "without"
+    print(
+        f"wrote {out}: {policy.env_name} policy, obs {policy.observation_size} -> action "
+        f"{policy.action_size}, hidden {tuple(policy.meta['hidden_sizes'])}, {norm} "
+        "observation normalisation"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    from mara_mjx.cli.common import run_cli
+
+    sys.exit(run_cli(main, PROG))

@@ -1,0 +1,1 @@
+"""Policies outside JAX: the numpy IK finish and the ONNX graph of an exported policy."""

@@ -1,0 +1,1 @@
+"""Pictures: C MuJoCo rendering of the arm, videos, and the figures of runs."""
