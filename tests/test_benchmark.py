@@ -24,7 +24,7 @@ from brax.envs.wrappers.training import wrap
 
 import mara_mjx
 from mara_mjx.adapters.brax_env import METRICS, NEVER, BraxMaraEnv, make_brax_env
-from mara_mjx.bench.ppo import CompileClock, Run
+from mara_mjx.bench.ppo_runs import CompileClock, Run
 
 ROOT = Path(__file__).resolve().parents[1]
 META_KEYS = {"study", "command", "versions", "device", "config", "date", "records"}

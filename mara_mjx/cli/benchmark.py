@@ -40,7 +40,7 @@ Studies:
         (the deterministic policy for `--score_steps` steps from `--score_episodes`
         noisy resets, mean per-axis error over the last `--score_last` steps). Reported:
         env steps/s during training, wall-clock to 5 mm and 1 mm (compile excluded),
-        and the ratios. (`mara_mjx.bench.ppo`, whose docstring defines the clocks)
+        and the ratios. (`mara_mjx.bench.ppo`; the clocks: `mara_mjx.bench.ppo_runs`)
   limit FLOPs and bytes of one env step (XLA's cost analysis: estimates) against the
         device's ceilings measured in the same run (float32 HIGHEST and bfloat16
         matmul FLOP/s, elementwise memory bandwidth): the roofline bound on env
