@@ -276,7 +276,8 @@ def test_tta_study_quick(runs):
 
 
 def test_tta_reads_the_cli_times_on_the_launch_clock(tmp_path):
-    from mara_mjx.bench.tta import median_record, read_run
+    from mara_mjx.bench.train_command import read_run
+    from mara_mjx.bench.tta import median_record
 
     rows = ["update,env_steps,time_s,steps_per_s,det_error_mm"]
     rows += ["1,10,4.0,2.0,9.0", "2,20,4.0,2.0,4.0", "3,30,5.0,100.0,2.0", "4,40,6.0,300.0,0.5"]

@@ -59,7 +59,7 @@ from typing import Any, ClassVar, NamedTuple
 import numpy as np
 
 from mara_mjx.bench.runner import BenchConfig, Study
-from mara_mjx.bench.tta import QUIET, check_train_args, child_env, launch
+from mara_mjx.bench.train_command import QUIET, check_train_args, child_env, launch
 from mara_mjx.config import check_int
 
 CLI = "cli"

@@ -218,7 +218,7 @@ def plot_throughput(
 
 
 # The variables `configure` may change, as they were before it did: the environment of a
-# study's subprocesses, which run users' commands (mara_mjx.bench.tta).
+# study's subprocesses, which run users' commands (mara_mjx.bench.train_command.child_env).
 USER_ENV: dict[str, str | None] = {}
 
 
