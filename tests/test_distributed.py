@@ -51,15 +51,17 @@ TOY = [
     "--tensorboard", "false",
 ]  # fmt: skip
 
-# A subprocess: the train CLI with the toy env registered (argv: tests folder, CLI flags).
+# A subprocess: the train CLI with the toy env registered (argv: tests folder, CLI flags),
+# watched by its parent as `python -m mara_mjx.train` is (mara_mjx/runtime/supervise.py).
 CLI = r"""
 import sys
 sys.path.insert(0, sys.argv[1])
 from test_distributed import register_toy
 register_toy()
 from mara_mjx.cli import train
-from mara_mjx.runtime import distributed
-sys.exit(distributed.run_cli(train.main, train.PROG, sys.argv[2:]))
+from mara_mjx.runtime import distributed, supervise
+cli = lambda: distributed.run_cli(train.main, train.PROG, sys.argv[2:])
+sys.exit(supervise.run(cli, train.PROG))
 """
 
 # One process, 2 CPU devices: the toy config as the CLI resolves it, trained on 1 and on 2
@@ -294,6 +296,31 @@ def test_killing_a_process_stops_the_other(env_vars, tmp_path):
     # fatal errors ... stopped sending heartbeats"), or a collective fails first
     assert "detected fatal errors" in err or "process 0 of 2 failed" in err, err[-3000:]
     assert not (tmp_path / "run" / ckpt.CHECKPOINT_DIR / ckpt.checkpoint_name(1)).exists()
+
+
+def test_killing_process_zero_ends_the_other_with_one_line(env_vars, tmp_path):
+    """Process 0, the coordinator, killed (-9; its watched child dies with it): JAX aborts
+    process 1 at once from C++ (SIGABRT, before any Python code runs); its watching parent
+    (mara_mjx/runtime/supervise.py) ends it with one line naming process 0, status 1."""
+    procs = start_pair(env_vars, [*TOY, "--out", str(tmp_path / "run")], timeout=60)
+    for line in procs[1].stdout:
+        if "joined; process 0 writes the run folder" in line:
+            break
+    procs[0].send_signal(signal.SIGKILL)
+    killed = time.monotonic()
+    try:
+        _, err = procs[1].communicate(timeout=60)
+    finally:
+        for p in procs:
+            p.kill()
+    seconds = time.monotonic() - killed
+    assert procs[1].returncode == 1, err[-3000:]  # (unwatched: -6, and a C++ stack trace)
+    assert seconds < 10, seconds  # measured: 0.2-0.4 s
+    last = err.strip().splitlines()[-1]
+    assert last.startswith(
+        "mara_mjx.train: error: JAX ended this process (SIGABRT) because process 0 "
+        "(the coordinator, at localhost:"
+    ), err[-3000:]
 
 
 # Two processes build the MARA env: every array it holds must be on this process's device

@@ -8,6 +8,7 @@ worker); its subprocesses share a persistent compilation cache (`cli_env`).
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 
@@ -109,14 +110,17 @@ def test_sigterm_stops_like_ctrl_c_and_a_second_train_on_the_folder_is_refused(
     for line in proc.stdout:  # printed just before the first call, which compiles
         if "the first call compiles" in line:
             break
-    proc.send_signal(signal.SIGSTOP)
+    # the training process: the child of the CLI's watching parent (runtime/supervise.py)
+    with open(f"/proc/{proc.pid}/task/{proc.pid}/children") as f:
+        trainer = int((f.read().split() or [proc.pid])[0])  # (MARA_MJX_SUPERVISE=0: itself)
+    os.kill(trainer, signal.SIGSTOP)
     try:
         code = run_cli(train_cli.main, train_cli.PROG, [*LONG, *QUIET, "--out", str(out)])
         err = capsys.readouterr().err
-        assert code == 2 and f"in use by another mara_mjx process (pid {proc.pid})" in err, err
-        proc.send_signal(signal.SIGTERM)
+        assert code == 2 and f"in use by another mara_mjx process (pid {trainer})" in err, err
+        proc.send_signal(signal.SIGTERM)  # the parent forwards it
     finally:
-        proc.send_signal(signal.SIGCONT)
+        os.kill(trainer, signal.SIGCONT)
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 143, err[-3000:]
     assert "SIGTERM: stopping after the jitted call in flight" in err, err[-3000:]

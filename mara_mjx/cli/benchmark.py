@@ -85,4 +85,8 @@ def main(argv: Sequence[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    from mara_mjx.runtime import supervise
+
+    sys.exit(supervise.run(lambda: main() or 0, "mara_mjx.benchmark"))

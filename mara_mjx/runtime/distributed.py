@@ -46,9 +46,11 @@ What the train CLI does differently when several processes take part:
   reads the others'. JAX's own deadlines are set later (heartbeats: twice ours plus 10 s;
   joining: ours plus 60 s), because JAX ends a process whose peer is missing with a C++
   abort and stack trace ("Terminating process because the JAX distributed service
-  detected fatal errors"). Not covered: when process 0, which runs the coordination
-  service, dies, JAX's error polling aborts the others that way at once (exit by SIGABRT,
-  within a second), before any Python code can run.
+  detected fatal errors"). When process 0, which runs the coordination service, dies,
+  JAX's error polling aborts the others that way at once (SIGABRT, within a second),
+  before any Python code can run: the CLI's watching parent (mara_mjx/runtime/supervise.py)
+  then prints the one line ("JAX ended this process (SIGABRT) because process 0 (the
+  coordinator, at HOST:PORT) died ...", exit status 1).
 
 On CPU (the test suite) the collectives between processes are gloo's
 (`jax_cpu_collectives_implementation`).
