@@ -236,4 +236,6 @@ def evaluate_seeds_run(
 
 
 if __name__ == "__main__":
-    sys.exit(run_cli(main, PROG))
+    from mara_mjx.runtime import supervise
+
+    sys.exit(supervise.run(lambda: run_cli(main, PROG), PROG))

@@ -414,5 +414,6 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     from mara_mjx.cli.common import run_cli
+    from mara_mjx.runtime import supervise
 
-    sys.exit(run_cli(main, PROG))
+    sys.exit(supervise.run(lambda: run_cli(main, PROG), PROG))

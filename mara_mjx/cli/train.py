@@ -381,4 +381,6 @@ def finish(
 
 
 if __name__ == "__main__":
-    sys.exit(distributed.run_cli(main, PROG))
+    from mara_mjx.runtime import supervise
+
+    sys.exit(supervise.run(lambda: distributed.run_cli(main, PROG), PROG))
