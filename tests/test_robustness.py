@@ -6,15 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mara_mjx.bench.robustness import (
-    RobustnessConfig,
-    failure,
-    iqm,
-    iqm_interval,
-    make_jobs,
-    split_recipe,
-    summarise,
-)
+from mara_mjx.bench.robustness import RobustnessConfig, make_jobs, split_recipe
+from mara_mjx.bench.robustness_judge import failure
+from mara_mjx.bench.robustness_report import iqm, iqm_interval, summarise
 
 
 def test_recipes_name_a_preset_or_the_cli_choice():
@@ -127,7 +121,7 @@ def test_an_unfinished_run_is_continued_and_an_empty_one_started_again(tmp_path)
 def test_pose_summary_keeps_the_worst_episodes_to_replay():
     from types import SimpleNamespace
 
-    from mara_mjx.bench.robustness import WORST_EPISODES, pose_summary
+    from mara_mjx.bench.robustness_judge import WORST_EPISODES, pose_summary
 
     rng = np.random.default_rng(0)
     pos = rng.uniform(0.0, 0.5, (40, 3))

@@ -49,15 +49,20 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 import shlex
 import sys
 import tempfile
 from pathlib import Path
 from typing import Any, ClassVar, NamedTuple
 
-import numpy as np
-
+from mara_mjx.bench.robustness_judge import (
+    failure,
+    judge_fixed,
+    judge_real,
+    judge_targets,
+    load_seeds,
+)
+from mara_mjx.bench.robustness_report import TABLE, print_job, summarise
 from mara_mjx.bench.runner import BenchConfig, Study
 from mara_mjx.bench.train_command import QUIET, check_train_args, child_env, launch
 from mara_mjx.config import check_int
@@ -170,241 +175,6 @@ def train_argv(config: RobustnessConfig, task: str, recipe: str, out: Path) -> l
     argv += ["--preset", preset] if preset else []
     argv += [*shlex.split(flags), *QUIET, *shlex.split(config.train_args)]
     return argv + ["--out", str(out)]
-
-
-# ------------------------------------------------------------------ judgements
-def load_seeds(run: Path, seeds: list[int]) -> tuple[list[Any], dict[str, Any], list[Any]]:
-    """(policies, the first seed's checkpoint meta, each seed's milestones) of a --seeds
-    run folder: every seed's newest checkpoint."""
-    from mara_mjx.cli import seeds as seeds_cli
-    from mara_mjx.ppo import checkpoint as ckpt
-    from mara_mjx.ppo.policy import policy_from_checkpoint
-
-    policies, metas = [], []
-    for s in seeds:
-        arrays, meta = ckpt.load_checkpoint(ckpt.find_checkpoint(seeds_cli.folder(run, s)))
-        policies.append(policy_from_checkpoint(arrays, meta))
-        metas.append(meta)
-    return policies, metas[0], [m["progress"].get("milestones", {}) for m in metas]
-
-
-def _vmapped(env: Any, eval_config: Any, params: Any, policy: Any, n: int) -> list[Any]:
-    """ppo.evaluation's episodes for a seed-stacked policy, one program: EvalResult each."""
-    import jax
-
-    from mara_mjx.ppo.evaluation import EvalResult, make_evaluate
-
-    out = jax.device_get(jax.jit(jax.vmap(make_evaluate(env, eval_config, params)))(policy))
-    return [EvalResult(**{k: np.asarray(v[i]) for k, v in out.items()}) for i in range(n)]
-
-
-def judge_fixed(env: Any, policy: Any, n: int, config: RobustnessConfig, orientation: bool):
-    """Per seed: the paper's evaluation and the hold (module docstring)."""
-    from mara_mjx.ppo.config import EvalConfig
-
-    paper_cfg = EvalConfig(episodes=config.episodes, seed=config.eval_seed)
-    hold_cfg = paper_cfg.replace(tolerance_mm=0.0)
-    paper = _vmapped(env, paper_cfg, None, policy, n)
-    hold = _vmapped(env, hold_cfg, None, policy, n)
-    rows = []
-    for p, h in zip(paper, hold, strict=True):
-        row = {
-            "paper": {
-                "position_mm": np.mean(p.position_error_mm, 0).tolist(),
-                "reached": int(np.sum(p.reached)),
-                "episodes": len(p.reached),
-                "collisions": int(np.sum(p.collisions)),
-            },
-            "hold": {
-                "position_mm": np.mean(h.position_error_mm, 0).tolist(),
-                "worst_episode_mm": np.max(h.position_error_mm, 0).tolist(),
-                "collisions_per_episode": float(np.mean(h.collisions)),
-                "colliding_episodes": np.flatnonzero(h.collisions).tolist(),
-            },
-        }
-        if orientation:
-            row["paper"]["orientation_deg"] = np.mean(p.orientation_error_deg, 0).tolist()
-            row["hold"]["orientation_deg"] = np.mean(h.orientation_error_deg, 0).tolist()
-        rows.append(row)
-    return rows
-
-
-WORST_EPISODES = 5
-"""Worst episodes kept per seed and judgement, to trace a failure without rerunning."""
-
-
-def pose_summary(result: Any, orientation: bool, poses: Any = None) -> dict[str, Any]:
-    """Fractions within 5 and 1 mm (deg), per axis mean / median / p95 / worst
-    (target_eval.axis_stats), episodes with a collision, and the WORST_EPISODES worst
-    episodes (by the worst axis in mm or deg): index (episode i runs from key i of the
-    evaluation seed, so it can be replayed), errors, collisions and, given the `poses`,
-    its target."""
-    from mara_mjx.ppo.target_eval import axis_stats
-
-    pos = np.asarray(result.position_error_mm, np.float64)
-    ok = [pos]
-    out: dict[str, Any] = {"position_mm": axis_stats(pos)}
-    if orientation:
-        ori = np.asarray(result.orientation_error_deg, np.float64)
-        ok.append(ori)
-        out["orientation_deg"] = axis_stats(ori)
-    errors = np.concatenate(ok, 1)
-    for t in (5.0, 1.0):
-        out[f"within_{t:g}"] = float(np.mean(np.all(errors <= t, axis=1)))
-    collisions = np.asarray(result.collisions)
-    out["episodes_colliding"] = float(np.mean(collisions > 0))
-    worst = []
-    for i in np.argsort(-errors.max(1), kind="stable")[:WORST_EPISODES]:
-        case = {"episode": int(i), "error": errors[i].round(3).tolist(),
-                "collisions": int(collisions[i])}  # fmt: skip
-        if poses is not None:
-            case.update(target_pos=poses.pos[i].tolist(), target_quat=poses.quat[i].tolist())
-        worst.append(case)
-    out["worst_episodes"] = worst
-    return out
-
-
-def held_out_params(env: Any, eval_config: Any) -> tuple[Any, Any]:
-    """(params, poses) of `eval_config.episodes` episodes, each its own held-out pose of
-    the env's region (ppo.target_eval's poses, from `eval_config.seed`)."""
-    from mara_mjx.envs import targets
-    from mara_mjx.envs.random_target import with_targets
-
-    n, seed = eval_config.episodes, eval_config.seed
-    poses = targets.evaluation_poses(env.arm.mj_model, env.region, n, seed)
-    params = with_targets(env.make_params(reset_noise=eval_config.noise), poses.pos, poses.quat)
-    return params, poses
-
-
-def judge_targets(env: Any, policy: Any, n: int, config: RobustnessConfig, orientation: bool):
-    """Per seed: the held-out poses (ppo.target_eval's poses and episodes)."""
-    from mara_mjx.ppo.target_eval import DEFAULTS
-
-    eval_cfg = DEFAULTS.replace(episodes=config.poses, seed=config.eval_seed)
-    params, poses = held_out_params(env, eval_cfg)
-    return [{"targets": pose_summary(r, orientation, poses)}
-            for r in _vmapped(env, eval_cfg, params, policy, n)]  # fmt: skip
-
-
-def judge_real(meta: dict[str, Any], policy: Any, n: int, config: RobustnessConfig, orientation):
-    """Per seed and velocity: the real driver on randomised physics draws."""
-    from mara_mjx.envs.random_target import is_random_target
-    from mara_mjx.ppo.config import EvalConfig
-    from mara_mjx.runtime import runs
-
-    eval_cfg = EvalConfig(
-        episodes=config.draws, seed=config.eval_seed, tolerance_mm=0.0, rate_limit=config.rate_limit
-    )
-    rows: list[dict[str, Any]] = [{"real": {}} for _ in range(n)]
-    for v in config.velocities:
-        env = runs.make_env(meta, driver="real", velocity=v, randomize=True)
-        params, poses = held_out_params(env, eval_cfg) if is_random_target(env) else (None, None)
-        for row, r in zip(rows, _vmapped(env, eval_cfg, params, policy, n), strict=True):
-            row["real"][f"{v:g}"] = pose_summary(r, orientation, poses)
-    return rows
-
-
-def failure(row: dict[str, Any], task: str, config: RobustnessConfig) -> list[str]:
-    """Why a seed fails (module docstring); [] when it does not."""
-    from mara_mjx.ppo.evaluation import PAPER_RESULTS
-
-    why = []
-    if "paper" in row:
-        p = row["paper"]
-        if p["reached"] < p["episodes"]:
-            why.append(f"reached {p['reached']}/{p['episodes']}")
-        paper = PAPER_RESULTS.get(task, {})
-        for key, unit in (("position_mm", "mm"), ("orientation_deg", "deg")):
-            ref = paper.get(key)
-            if ref and key in p:
-                over = [f"{a:.2f}>{m:.2f}" for a, (m, _) in zip(p[key], ref, strict=True) if a > m]
-                if over:
-                    why.append(f"{key.split('_')[0]} over the paper's mean ({unit}): {over}")
-    judged = [("targets", row.get("targets"))]
-    judged += [(f"real {v} rad/s", r) for v, r in row.get("real", {}).items()]
-    for name, r in judged:
-        if r is not None and r["within_5"] < config.fail_fraction:
-            why.append(f"{name}: {100 * r['within_5']:.1f}% within 5 mm/deg")
-    return why
-
-
-# ------------------------------------------------------------------ statistics
-def iqm(x: np.ndarray) -> float:
-    """Interquartile mean: the mean of the middle 50% (scipy's trim_mean, 25% each side)."""
-    from scipy.stats import trim_mean
-
-    return float(trim_mean(np.asarray(x, np.float64), 0.25))
-
-
-def iqm_interval(x: np.ndarray, resamples: int, seed: int = 0) -> tuple[float, float]:
-    """95% percentile-bootstrap interval of the IQM over seeds (resampled with
-    replacement)."""
-    from scipy.stats import trim_mean
-
-    x = np.asarray(x, np.float64)
-    rng = np.random.default_rng(seed)
-    samples = x[rng.integers(0, len(x), size=(resamples, len(x)))]
-    stats = trim_mean(samples, 0.25, axis=1)
-    return float(np.percentile(stats, 2.5)), float(np.percentile(stats, 97.5))
-
-
-METRICS: tuple[tuple[str, tuple[str, ...], str, bool], ...] = (
-    # (name, path into a seed row, unit, larger is worse)
-    ("paper position", ("paper", "position_mm"), "mm", True),
-    ("paper orientation", ("paper", "orientation_deg"), "deg", True),
-    ("hold position", ("hold", "position_mm"), "mm", True),
-    ("hold orientation", ("hold", "orientation_deg"), "deg", True),
-    ("hold collisions/episode", ("hold", "collisions_per_episode"), "", True),
-    ("poses within 5 mm(/deg)", ("targets", "within_5"), "fraction", False),
-    ("poses within 1 mm(/deg)", ("targets", "within_1"), "fraction", False),
-    ("poses position mean", ("targets", "position_mm", "mean"), "mm", True),
-    ("poses orientation mean", ("targets", "orientation_deg", "mean"), "deg", True),
-    ("poses colliding", ("targets", "episodes_colliding"), "fraction", True),
-)
-REAL_METRICS = (
-    ("within 5 mm(/deg)", ("within_5",), "fraction", False),
-    ("within 1 mm(/deg)", ("within_1",), "fraction", False),
-    ("position mean", ("position_mm", "mean"), "mm", True),
-    ("colliding", ("episodes_colliding",), "fraction", True),
-)
-
-
-def metrics_for(rows: list[dict[str, Any]]) -> list[tuple[str, tuple[str, ...], str, bool]]:
-    """The metrics present in these seed rows (the real ones per velocity)."""
-    out = [m for m in METRICS if _get(rows[0], m[1]) is not None]
-    for v in rows[0].get("real", {}):
-        out += [(f"real {v} rad/s {n}", ("real", v, *p), u, w) for n, p, u, w in REAL_METRICS]
-    return out
-
-
-def _get(row: Any, path: tuple[str, ...]) -> Any:
-    for part in path:
-        if not isinstance(row, dict) or part not in row:
-            return None
-        row = row[part]
-    return row
-
-
-def summarise(rows: list[dict[str, Any]], config: RobustnessConfig) -> list[dict[str, Any]]:
-    """One record per metric: per axis (or the scalar) mean, median, IQM and its interval
-    over seeds, and the worst seed."""
-    records = []
-    seeds = [r["seed"] for r in rows]
-    for name, path, unit, larger_worse in metrics_for(rows):
-        values = np.array([_get(r, path) for r in rows], np.float64)  # (seeds,) or (seeds, 3)
-        per_axis = values.reshape(len(rows), -1)
-        axes = [iqm_interval(per_axis[:, k], config.bootstrap) for k in range(per_axis.shape[1])]
-        score = per_axis.max(1) if larger_worse else -per_axis.min(1)
-        worst = int(np.argmax(score))
-        records.append({
-            "kind": "metric", "task": rows[0]["task"], "recipe": rows[0]["recipe"],
-            "metric": name, "unit": unit, "path": ".".join(path), "seeds": len(rows),
-            "failed_seeds": [r["seed"] for r in rows if r["failed"]],
-            "mean": per_axis.mean(0).tolist(), "median": np.median(per_axis, 0).tolist(),
-            "iqm": [iqm(per_axis[:, k]) for k in range(per_axis.shape[1])],
-            "iqm_ci95": axes, "worst_seed": seeds[worst], "worst": per_axis[worst].tolist(),
-        })  # fmt: skip
-    return records
 
 
 # ------------------------------------------------------------------ the study
@@ -552,19 +322,8 @@ def judge(config: RobustnessConfig, job: Job, timing: dict[str, Any]) -> list[di
         })  # fmt: skip
     trained = {"train_s": timing["command_s"], "train_reused": timing.get("reused", False)}
     summary = [{**r, **base, **trained} for r in summarise(records, config)]
-    _print(records, summary)
+    print_job(records, summary)
     return records + summary
-
-
-def _print(seeds: list[dict], summary: list[dict]) -> None:
-    failed = [r for r in seeds if r["failed"]]
-    print(f"{seeds[0]['task']} / {seeds[0]['recipe']}: {len(failed)} of {len(seeds)} seeds "
-          "failed", flush=True)  # fmt: skip
-    for r in failed:
-        print(f"    seed {r['seed']}: {'; '.join(r['why'])}")
-    for r in summary:
-        print(f"  {r['metric']}: mean {_fmt(r['mean'])}, worst seed {r['worst_seed']} "
-              f"{_fmt(r['worst'])}", flush=True)  # fmt: skip
 
 
 def robustness_study(config: RobustnessConfig) -> list[dict[str, Any]]:
@@ -582,97 +341,10 @@ def _run_all(config: RobustnessConfig, work: Path) -> list[dict[str, Any]]:
     return [r for job, t in zip(jobs, timings, strict=True) for r in judge(config, job, t)]
 
 
-# ------------------------------------------------------------------ reporting
-def _fmt(values: Any, digits: int = 2) -> str:
-    values = values if isinstance(values, list) else [values]
-    return " / ".join(f"{v:.{digits}f}" if v is not None and math.isfinite(v) else "-"
-                      for v in values)  # fmt: skip
-
-
-def _iqm_cell(r: dict[str, Any]) -> str:
-    return " / ".join(
-        f"{m:.2f} [{lo:.2f}, {hi:.2f}]" for m, (lo, hi) in zip(r["iqm"], r["iqm_ci95"], strict=True)
-    )
-
-
-def _metric_rows(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    return [r for r in records if r["kind"] == "metric"]
-
-
-def notes(records: list[dict[str, Any]]) -> list[str]:
-    lines = ["Per axis x / y / z (roll / pitch / yaw); IQM with its 95% bootstrap interval "
-             "over seeds. Failed seeds and why:", ""]  # fmt: skip
-    seeds = [r for r in records if r["kind"] == "seed"]
-    for r in seeds:
-        if r["failed"]:
-            lines.append(f"- {r['task']} / {r['recipe']}, seed {r['seed']}: {'; '.join(r['why'])}")
-    if not any(r["failed"] for r in seeds):
-        lines.append("- none")
-    for r in records:
-        if r["kind"] == "error":
-            lines.append(f"- {r['task']} / {r['recipe']}: the train command failed: "
-                         f"{r['error'].splitlines()[0]}")  # fmt: skip
-    commands = {(r["task"], r["recipe"]): r["command"] for r in records}
-    lines += ["", "Train commands:", ""]
-    lines += [f"- `{c}`" for c in commands.values()]
-    return lines
-
-
-def plot(records: list[dict[str, Any]], title: str, path: Path) -> None:
-    """One dot per seed: each recipe's worst axis (position, mm) of its first judgement,
-    and the fraction of episodes outside 5 mm where episodes are judged by fraction."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    seeds = [r for r in records if r["kind"] == "seed"]
-    groups = list(dict.fromkeys((r["task"], r["recipe"]) for r in seeds))
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(groups) + 2), 4.5))
-    for i, (task, recipe) in enumerate(groups):
-        rows = [r for r in seeds if (r["task"], r["recipe"]) == (task, recipe)]
-        ys = [_headline(r) for r in rows]
-        xs = i + np.linspace(-0.25, 0.25, len(rows))
-        colours = ["tab:red" if r["failed"] else "tab:blue" for r in rows]
-        ax.scatter(xs, np.maximum(ys, 1e-3), c=colours, s=18, zorder=3)
-    ax.scatter([], [], c="tab:blue", s=18, label="seed")
-    ax.scatter([], [], c="tab:red", s=18, label="failed seed")
-    ax.axhline(1.0, color="grey", lw=0.8, ls="--")
-    ax.set_xticks(range(len(groups)))
-    ax.set_xticklabels([f"{t}\n{r}" for t, r in groups], fontsize=7)
-    ax.set_yscale("log")
-    from mara_mjx.viz.plots import finish_figure
-
-    finish_figure(fig, ax, path, f"Robustness over seeds ({title})", "task / recipe",
-                  "worst axis of the seed's mean error (mm)")  # fmt: skip
-
-
-def _headline(row: dict[str, Any]) -> float:
-    """A seed's worst mean axis error (mm): the paper's evaluation, else the poses."""
-    if "paper" in row:
-        return max(row["paper"]["position_mm"])
-    return max(row["targets"]["position_mm"]["mean"])
-
-
 STUDY = Study(
     name="robustness",
     config=RobustnessConfig,
     run=robustness_study,
-    table={
-        "title": "Robustness over seeds: each recipe's seeds, judged as their task is judged",
-        "columns": [
-            ("task", lambda r: r["task"]),
-            ("recipe", lambda r: f"`{r['recipe']}`"),
-            ("metric", lambda r: r["metric"] + (f" ({r['unit']})" if r["unit"] else "")),
-            ("failed / seeds", lambda r: f"{len(r['failed_seeds'])} / {r['seeds']}"),
-            ("mean", lambda r: _fmt(r["mean"])),
-            ("median", lambda r: _fmt(r["median"])),
-            ("IQM [95% CI]", _iqm_cell),
-            ("worst seed", lambda r: f"{r['worst_seed']}: {_fmt(r['worst'])}"),
-        ],
-        "rows": _metric_rows,
-        "notes": notes,
-        "plot": plot,
-    },
+    table=TABLE,
     summary="training recipes over N fresh seeds, each judged as its task is judged",
 )
