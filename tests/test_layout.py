@@ -127,6 +127,23 @@ def test_root_modules_are_small():
         assert lines <= 420, f"{path.name} has {lines} lines"
 
 
+MAX_MODULE_LINES = 450
+# Known exceptions, exactly these two: another engineer is splitting them right now
+# (issue 33, the PPO config split). Delete each from here once its split lands.
+BEING_SPLIT = {"mara_mjx/ppo/config.py", "mara_mjx/ppo/train.py"}
+
+
+def test_no_module_is_over_450_lines():
+    """Every module of the package reads in one sitting (style.md): at most 450 lines."""
+    long = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        name = path.relative_to(PACKAGE.parent).as_posix()
+        lines = len(path.read_text().splitlines())
+        if lines > MAX_MODULE_LINES and name not in BEING_SPLIT:
+            long[name] = lines
+    assert not long, f"over {MAX_MODULE_LINES} lines, split by responsibility: {long}"
+
+
 def _parsers() -> list[argparse.ArgumentParser]:
     from mara_mjx.bench import runner
 
