@@ -126,14 +126,14 @@ def child(args: argparse.Namespace) -> None:
         "run": args.run,
         "XLA_FLAGS": os.environ["XLA_FLAGS"].strip(),
         "device": str(jax.devices()[0].device_kind),
-        "num_envs": config.num_envs,
-        "num_steps": config.num_steps,
+        "num_envs": config.ppo.num_envs,
+        "num_steps": config.ppo.num_steps,
         "updates_per_call": args.updates,
         "hashes": hashes,
         "repeat_hashes": repeat,
         "same_process_identical": hashes == repeat,
         "first_call_s": round(first_s, 2),
-        "env_steps_per_s": config.batch_size * args.updates / steady[len(steady) // 2],
+        "env_steps_per_s": config.ppo.batch_size * args.updates / steady[len(steady) // 2],
         "op_counts": None if ops is None else {k: v["count"] for k, v in ops.items()},
     }
     print("RESULT " + json.dumps(result), flush=True)

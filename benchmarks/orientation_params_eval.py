@@ -48,7 +48,7 @@ class TrainerPolicy:
 
     def __call__(self, obs: jax.Array) -> jax.Array:
         network = make_network(self.config, self.action_size, training=True)
-        return forward(network, self.params, self.obs_stats, obs, self.config.obs_clip)[0]
+        return forward(network, self.params, self.obs_stats, obs, self.config.ppo.obs_clip)[0]
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -2,7 +2,7 @@
 
 Orientation study (issue 11): why the Orient policies settle off the target pose, and
 which trainer-side changes fix it. Several seeds of each (task, variant) train in one
-vmapped program (ppo.train.make_seed_trainer); every `--chunk` updates a deterministic
+vmapped program (ppo.members.make_seed_trainer); every `--chunk` updates a deterministic
 probe records, per seed, where the policy takes the arm:
 
     q_final          (6,) joint positions after `--probe-steps` deterministic steps from reset
@@ -37,8 +37,9 @@ import numpy as np
 import mara_mjx
 from mara_mjx.ppo.config import PRESETS, EvalConfig, default_preset
 from mara_mjx.ppo.evaluation import make_evaluate
+from mara_mjx.ppo.members import make_seed_trainer, take_seed
 from mara_mjx.ppo.policy import make_policy
-from mara_mjx.ppo.train import make_seed_trainer, make_train, take_seed
+from mara_mjx.ppo.train import make_train
 
 VARIANTS = {
     "default": {},  # the current default preset

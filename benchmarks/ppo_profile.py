@@ -66,7 +66,7 @@ def update_times(env, config, updates: int, repeats: int, trace_dir: Path | None
     first = time.perf_counter() - t0
     state, call = time_calls(lambda s: trainer.run(s, updates)[0], state, repeats)
     row = {"first_call_s": first, "update_s": call / updates,
-           "env_steps_per_s": config.num_envs * config.num_steps * updates / call}  # fmt: skip
+           "env_steps_per_s": config.ppo.batch_size * updates / call}  # fmt: skip
     if trace_dir is not None:
         with traced(trace_dir):
             jax.block_until_ready(trainer.run(state, updates)[0])
@@ -134,7 +134,7 @@ def main() -> None:
                         "rest_s": one["update_s"] - sgd_epoch}  # fmt: skip
     print(json.dumps({k: v for k, v in record["update"].items() if k != "kernels"}), flush=True)
     record["env_step"] = []
-    for n in dict.fromkeys([config.num_envs, *args.env_sizes]):
+    for n in dict.fromkeys([config.ppo.num_envs, *args.env_sizes]):
         row = env_step(env, n, args.env_steps, args.repeats, tmp / f"env_{n}")
         record["env_step"].append(row)
         print(json.dumps({k: v for k, v in row.items() if k != "kernels"}), flush=True)

@@ -1,7 +1,7 @@
 """Random-target study: several seeds per (task, variant) in one program, held-out poses.
 
 Which trainer-side recipe gives one policy that reaches any pose of the region. Several
-seeds of each (task, variant) train in one vmapped program (ppo.train.make_seed_trainer,
+seeds of each (task, variant) train in one vmapped program (ppo.members.make_seed_trainer,
 as benchmarks/orientation_study.py); at the end every seed's policy is evaluated on
 `--poses` held-out poses exactly as `python -m mara_mjx.evaluate` does for a random-target
 run (ppo.target_eval: evaluation stream disjoint from the training table's, hold to the
@@ -33,10 +33,11 @@ import numpy as np
 import mara_mjx
 from mara_mjx.envs import targets
 from mara_mjx.ppo import target_eval
-from mara_mjx.ppo.config import PRESETS, PPOConfig, default_preset
+from mara_mjx.ppo.config import PRESETS, TrainConfig, default_preset
 from mara_mjx.ppo.evaluation import evaluate, make_evaluate
+from mara_mjx.ppo.members import make_seed_trainer, take_seed
 from mara_mjx.ppo.policy import make_policy
-from mara_mjx.ppo.train import make_seed_trainer, make_train, take_seed
+from mara_mjx.ppo.train import make_train
 
 sys.path.insert(0, os.path.dirname(__file__))
 from orientation_study import parse_variant, run_studies, save_seed_params  # noqa: E402
@@ -48,7 +49,7 @@ def load_saved_policy(folder, seed: int, overrides: dict | None = None):
     with open(os.path.join(folder, f"seed{seed}.pkl"), "rb") as f:
         net_params, stats, cfg = pickle.load(f)
     cfg = {k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}
-    return make_policy(net_params, PPOConfig(**{**cfg, **(overrides or {})}), stats)
+    return make_policy(net_params, TrainConfig.from_dict(cfg).replace(**(overrides or {})), stats)
 
 
 def study(task: str, variant: str, seeds: tuple[int, ...], args) -> dict:

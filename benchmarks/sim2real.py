@@ -90,8 +90,8 @@ def train(env_name: str, driver: str, randomize: bool, steps: float, args) -> tu
     if args.tiny:
         config = config.replace(num_envs=8, num_steps=4, num_minibatches=2, total_timesteps=64)
     start = time.monotonic()
-    trainer = make_train(env, config, updates_per_call=min(10, config.num_updates))
-    state = trainer.init(jax.random.key(config.seed))
+    trainer = make_train(env, config, updates_per_call=min(10, config.ppo.num_updates))
+    state = trainer.init(jax.random.key(config.ppo.seed))
     done = 0
     while done < trainer.num_updates:
         n = min(trainer.updates_per_call, trainer.num_updates - done)

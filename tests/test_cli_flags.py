@@ -28,7 +28,7 @@ def test_train_help_is_short_and_shows_the_tasks_preset(task):
     assert len(text.splitlines()) <= 150, len(text.splitlines())
     words = " ".join(text.split())
     assert f"PPO defaults shown: the {preset!r} preset" in words and "--help_all" in text
-    total = PRESETS[preset].total_timesteps
+    total = PRESETS[preset].ppo.total_timesteps
     assert re.search(rf"total_timesteps // \(num_envs \* num_steps\)\. \(default:\s+{total}\)",
                      text), text  # fmt: skip
     full = train.build_parser(["--env", task], full=True).format_help()

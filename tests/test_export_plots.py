@@ -20,9 +20,9 @@ import mara_mjx
 from mara_mjx.cli.common import run_cli
 from mara_mjx.cli.export import ExportError, load_exported
 from mara_mjx.cli.export import main as export_main
-from mara_mjx.ppo import PPOConfig, RunningStats, make_policy
+from mara_mjx.ppo import RunningStats, make_policy
 from mara_mjx.ppo import checkpoint as ckpt
-from mara_mjx.ppo.config import for_env
+from mara_mjx.ppo.config import TrainConfig, for_env
 from mara_mjx.ppo.networks import make_network
 from mara_mjx.viz.plots import main as plots_main
 
@@ -41,7 +41,7 @@ def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bo
     (its output is its bias, whatever the observation)."""
     constant = ppo.pop("constant_actor", False)
     env = mara_mjx.make(env_name)
-    config = PPOConfig(
+    config = TrainConfig.of(
         hidden_sizes=(32, 16),
         normalize_obs=normalize,
         obs_clip=5.0,
@@ -62,7 +62,7 @@ def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bo
         treedef, [0.5 * jax.random.normal(k, x.shape) for k, x in zip(keys, leaves, strict=True)]
     )
     if constant:
-        last = params["params"]["actor"][f"Dense_{len(config.hidden_sizes)}"]
+        last = params["params"]["actor"][f"Dense_{len(config.ppo.hidden_sizes)}"]
         last["kernel"] = jnp.zeros_like(last["kernel"])
     state = {"params": params}
     if normalize:
@@ -77,7 +77,7 @@ def make_run(folder, env_name: str, normalize: bool, seed: int = 0, relative: bo
         "env_config": env.config.to_dict(),
         "observation_size": env.observation_size,
         "action_size": env.action_size,
-        "ppo": config.to_dict(),
+        **config.to_dict(),
         "run": {},
         "eval": {},
         "progress": {"update": 3, "env_steps": 300},

@@ -19,8 +19,7 @@ import pytest
 
 import mara_mjx
 from mara_mjx.envs.task_space import FINISH_HOLD, finish_step, nominal_chain, pose_step
-from mara_mjx.ppo import PPOConfig
-from mara_mjx.ppo.config import PRESETS, default_preset, for_env
+from mara_mjx.ppo.config import PRESETS, TrainConfig, default_preset, for_env
 from mara_mjx.ppo.networks import forward, make_network
 
 POSTURE = np.array([0.4, -0.5, 0.9, 0.1, 1.2, 0.0])
@@ -103,7 +102,7 @@ def test_ik_finish_is_deployed_only_and_replaces_the_step_near_the_target(mara):
     the learnt mean elsewhere (the same as without the finish); the trainer's network has
     no finish."""
     config = for_env(PRESETS["ik_finish"], mara)
-    assert config.ik_finish == 0.06
+    assert config.policy.ik_finish == 0.06
     saved, trainer = make_network(config, 6), make_network(config, 6, training=True)
     assert saved.ik_finish == 0.06 and trainer.ik_finish == 0.0
     assert trainer == make_network(config.replace(ik_finish=0.0), 6)
@@ -126,12 +125,12 @@ def test_ik_finish_is_validated_and_refused_on_an_orientation_task(mara):
     """Bad values, a missing relative_actions and an Orient task are clear errors that
     name the way out; the train CLI trains MARA with it (ppo.config.default_preset)."""
     with pytest.raises(ValueError, match="ik_finish"):
-        PPOConfig(ik_finish=-0.1, relative_actions=True)
+        TrainConfig.of(ik_finish=-0.1, relative_actions=True)
     with pytest.raises(ValueError, match="relative_actions=true"):
-        PPOConfig(ik_finish=0.06)
+        TrainConfig.of(ik_finish=0.06)
     with pytest.raises(ValueError, match="--preset orient_first"):
         for_env(PRESETS["ik_finish"], mara_mjx.make("MARAOrient"))
-    assert for_env(PRESETS["ik_finish"], mara_mjx.make("MARACollision")).ik_finish == 0.06
+    assert for_env(PRESETS["ik_finish"], mara_mjx.make("MARACollision")).policy.ik_finish == 0.06
     assert default_preset("MARA") == "ik_finish"
     assert PRESETS["ik_finish"] == PRESETS["default"].replace(ik_finish=0.06)
 
@@ -141,8 +140,8 @@ def test_hidden_obs_past_the_observation_is_a_clear_error(mara):
     13-15 on MARA) was silently ignored by JAX's scatter and crashed the export: for_env
     now names the problem and the valid range."""
     with pytest.raises(ValueError, match="0-11"):
-        for_env(PPOConfig(hidden_obs=(13, 14, 15)), mara)
-    assert for_env(PPOConfig(hidden_obs=(9, 10, 11)), mara).hidden_obs == (9, 10, 11)
+        for_env(TrainConfig.of(hidden_obs=(13, 14, 15)), mara)
+    assert for_env(TrainConfig.of(hidden_obs=(9, 10, 11)), mara).policy.hidden_obs == (9, 10, 11)
 
 
 def test_ik_inputs_passed_in_give_the_forward_pass_the_network_computes():
@@ -235,7 +234,7 @@ def test_the_orient_first_guard_is_deployed_only_and_keeps_the_actor_trainable()
     step = jnp.asarray([0.3, -0.2, 0.2, 0.0, 0.2, 0.0])
     last = params["params"]["actor"]["Dense_2"]
     last["kernel"] = jnp.zeros_like(last["kernel"])
-    last["bias"] = (step - ik_inputs(saved, obs)[0]) / ik_gate(obs, config.ik_gate)
+    last["bias"] = (step - ik_inputs(saved, obs)[0]) / ik_gate(obs, config.policy.ik_gate)
     unguarded = make_network(config, 6).clone(ik_guard=False)
     jump, *_ = forward(unguarded, params, None, obs, 10.0)
     assert float(jnp.linalg.norm(chain.tcp(jump)[0] - far)) < 1e-3  # it would land on it
@@ -306,14 +305,14 @@ def test_cpu_training_programs_hold_no_batched_lapack_call_and_the_ik_solve_is_e
     matches float64's."""
     from mara_mjx.envs.task_space import dls_step
     from mara_mjx.ppo import make_train
-    from mara_mjx.ppo.train import make_seed_trainer
+    from mara_mjx.ppo.members import make_seed_trainer
 
     assert jax.default_backend() == "cpu"
     env = mara_mjx.make("MARACollisionOrient")
     config = PRESETS[default_preset("MARACollisionOrient")].replace(
         num_envs=8, num_steps=4, num_minibatches=2, update_epochs=1, total_timesteps=8 * 4
     )
-    assert config.ik_prior  # the IK step is in this program
+    assert config.policy.ik_prior  # the IK step is in this program
     trainer = make_train(env, config, updates_per_call=1, devices=1)
     seeds = make_seed_trainer(trainer, (0, 1), devices=1)  # vmapped: a batched QR at init
     state = jax.eval_shape(seeds.init)

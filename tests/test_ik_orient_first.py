@@ -39,8 +39,7 @@ from mara_mjx.envs.task_space import (
     pose_step_wrapping,
     rotation_vector,
 )
-from mara_mjx.ppo import PPOConfig
-from mara_mjx.ppo.config import PRESETS, for_env
+from mara_mjx.ppo.config import PRESETS, TrainConfig, for_env
 from mara_mjx.ppo.networks import forward, ik_prior_step, make_network
 from mara_mjx.ppo.policy import make_policy
 
@@ -324,13 +323,13 @@ GATED = dict(relative_actions=True, ik_prior="residual", ik_gate=0.1, ik_wrap=Tr
 
 def test_ik_orient_first_config_is_validated_and_cleared_for_a_position_only_task():
     with pytest.raises(ValueError, match="ik_orient_first"):
-        PPOConfig(ik_orient_first=True)
+        TrainConfig.of(ik_orient_first=True)
     with pytest.raises(ValueError, match="ik_gate_wrap=False"):
-        PPOConfig(**GATED, ik_orient_first=True)
-    config = PPOConfig(**GATED, ik_gate_wrap=True, ik_orient_first=True)
-    assert for_env(config, mara_mjx.make("MARACollision")).ik_orient_first is False
+        TrainConfig.of(**GATED, ik_orient_first=True)
+    config = TrainConfig.of(**GATED, ik_gate_wrap=True, ik_orient_first=True)
+    assert for_env(config, mara_mjx.make("MARACollision")).policy.ik_orient_first is False
     orient = for_env(config, mara_mjx.make("MARACollisionOrient"))
-    assert orient.ik_orient_first is True and orient.quat_index == 9
+    assert orient.policy.ik_orient_first is True and orient.policy.quat_index == 9
 
 
 def test_ik_orient_first_network_takes_the_orient_first_ik_step(orient):
@@ -343,12 +342,12 @@ def test_ik_orient_first_network_takes_the_orient_first_ik_step(orient):
     batch = jnp.stack([obs, obs.at[:6].set(jnp.array([0.3, -0.4, 0.8, 0.1, 0.9, -0.2]))])
     steps, means = {}, {}
     for first in (False, True):
-        config = for_env(PPOConfig(**GATED, ik_gate_wrap=True, ik_orient_first=first), env)
-        assert config.ik_orient_first is first
+        config = for_env(TrainConfig.of(**GATED, ik_gate_wrap=True, ik_orient_first=first), env)
+        assert config.policy.ik_orient_first is first
         network = make_network(config, 6)
         assert network.ik_orient_first is first
         params = network.init(jax.random.key(3), batch[0], batch[0])
-        means[first] = np.asarray(forward(network, params, None, batch, config.obs_clip)[0])
+        means[first] = np.asarray(forward(network, params, None, batch, config.ppo.obs_clip)[0])
         steps[first] = np.asarray(ik_prior_step(batch, 9, True, first)[0])
     assert np.isfinite(means[True]).all()
     step_change = steps[True] - steps[False]
@@ -392,12 +391,13 @@ def test_train_ik_gate_roll_is_validated_cleared_and_absent_from_policies(orient
     the saved policy's included, does not; the option needs ik_gate_wrap and
     ik_orient_first and is cleared with them on a position-only task."""
     with pytest.raises(ValueError, match="train_ik_gate_roll"):
-        PPOConfig(relative_actions=True, ik_prior="residual", train_ik_gate_roll=True)
+        TrainConfig.of(relative_actions=True, ik_prior="residual", train_ik_gate_roll=True)
     config = PRESETS["orient_first"]
     cleared = for_env(config, mara_mjx.make("MARACollision"))
+    cleared = cleared.policy
     assert not (cleared.train_ik_gate_roll or cleared.ik_gate_wrap or cleared.ik_orient_first)
     config = for_env(config, orient.env)
-    assert config.train_ik_gate_roll
+    assert config.policy.train_ik_gate_roll
     trainer_net, policy_net = make_network(config, 6, training=True), make_network(config, 6)
     assert trainer_net.ik_gate_roll and not policy_net.ik_gate_roll
 
@@ -410,8 +410,8 @@ def test_train_ik_gate_roll_is_validated_cleared_and_absent_from_policies(orient
     # a correction the fresh actor would not make: the output layer's bias set to 0.3 rad
     params["params"]["actor"]["Dense_2"]["bias"] = jnp.full(6, 0.3)
     ik = np.asarray(ik_prior_step(obs, 9, True, True, True, True)[0])
-    train_mean = np.asarray(forward(trainer_net, params, None, obs, config.obs_clip)[0])
-    policy_mean = np.asarray(forward(policy_net, params, None, obs, config.obs_clip)[0])
+    train_mean = np.asarray(forward(trainer_net, params, None, obs, config.ppo.obs_clip)[0])
+    policy_mean = np.asarray(forward(policy_net, params, None, obs, config.ppo.obs_clip)[0])
     np.testing.assert_allclose(train_mean - np.asarray(start), ik, atol=1e-5)
     assert np.abs(policy_mean - train_mean).min() > 0.1  # the gated 0.3 rad correction
 
@@ -424,11 +424,11 @@ def test_train_ik_orient_loose_is_the_default_and_absent_from_policies(orient):
     the tool is aligned. With the option off the trainer's network is the deployed one.
     ik_orient_first needs the gated residual (its last approach acts through the gate)."""
     with pytest.raises(ValueError, match="ik_orient_first=true changes the IK step"):
-        PPOConfig(relative_actions=True, ik_prior="features", ik_orient_first=True)
+        TrainConfig.of(relative_actions=True, ik_prior="features", ik_orient_first=True)
     config = PRESETS["orient_first"]
-    assert config.train_ik_orient_loose and PPOConfig().train_ik_orient_loose
-    old = {k: v for k, v in config.to_dict().items() if k != "train_ik_orient_loose"}
-    assert PPOConfig.from_dict(old).train_ik_orient_loose
+    assert config.policy.train_ik_orient_loose and TrainConfig().policy.train_ik_orient_loose
+    old = {k: v for k, v in config.flat().items() if k != "train_ik_orient_loose"}
+    assert TrainConfig.from_dict(old).policy.train_ik_orient_loose  # a flat, older config
     config = for_env(config, orient.env)
     strict = make_network(config.replace(train_ik_orient_loose=False), 6, training=True)
     assert not strict.ik_orient_loose
@@ -447,7 +447,7 @@ def test_train_ik_orient_loose_is_the_default_and_absent_from_policies(orient):
     params = policy_net.init(jax.random.key(3), obs, obs)
     moved = {}
     for name, net in (("trainer", trainer_net), ("policy", policy_net)):
-        mean = forward(net, params, None, obs, config.obs_clip)[0]
+        mean = forward(net, params, None, obs, config.ppo.obs_clip)[0]
         moved[name] = float(jnp.linalg.norm(chain.jacobian(q)[:3] @ (mean - q)))
     assert moved["trainer"] > 0.013 and 0.003 < moved["policy"] < 0.007, moved
 

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import mara_mjx
-from mara_mjx.ppo.config import PRESETS, PPOConfig, for_env, reward_curriculum
+from mara_mjx.ppo.config import PRESETS, TrainConfig, for_env
+from mara_mjx.ppo.curriculum import reward_curriculum
 from mara_mjx.ppo.networks import RunningStats, canonical_quat, forward, make_network
 from mara_mjx.ppo.train import make_train
 
@@ -36,7 +37,7 @@ def test_policy_reads_q_and_minus_q_alike():
     stats = RunningStats.create(16)
     outputs = {}
     for on in (True, False):
-        config = for_env(PPOConfig(canonical_quat=on, relative_actions=True), env)
+        config = for_env(TrainConfig.of(canonical_quat=on, relative_actions=True), env)
         network = make_network(config, 6)
         params = network.init(jax.random.key(1), obs[0], obs[0])
         a = forward(network, params, stats, obs, 10.0)
@@ -49,10 +50,10 @@ def test_policy_reads_q_and_minus_q_alike():
 def test_for_env_resolves_the_quaternion_block():
     orient, plain = mara_mjx.make("MARACollisionOrient"), mara_mjx.make("MARA")
     default = PRESETS["default"]
-    assert default.canonical_quat and default.quat_index == -1
-    assert for_env(default, orient).quat_index == 9
-    assert for_env(default, plain).quat_index == -1
-    assert for_env(default.replace(canonical_quat=False), orient).quat_index == -1
+    assert default.policy.canonical_quat and default.policy.quat_index == -1
+    assert for_env(default, orient).policy.quat_index == 9
+    assert for_env(default, plain).policy.quat_index == -1
+    assert for_env(default.replace(canonical_quat=False), orient).policy.quat_index == -1
 
 
 def test_reward_curriculum_parses_and_names_bad_input():
@@ -68,13 +69,13 @@ def test_reward_curriculum_parses_and_names_bad_input():
         with pytest.raises(ValueError, match=words):
             reward_curriculum(bad)
     with pytest.raises(ValueError, match="train_reward"):
-        PPOConfig(train_reward="delta=oops")
+        TrainConfig.of(train_reward="delta=oops")
     with pytest.raises(ValueError, match="train_reward_until"):
-        PPOConfig(train_reward_until=0.0)
+        TrainConfig.of(train_reward_until=0.0)
     with pytest.raises(ValueError, match="train_collision_penalty"):
-        PPOConfig(train_collision_penalty=-1.0)
+        TrainConfig.of(train_collision_penalty=-1.0)
     with pytest.raises(ValueError, match="bound_coef"):
-        PPOConfig(bound_coef=float("inf"))
+        TrainConfig.of(bound_coef=float("inf"))
 
 
 def test_train_reset_noise_starts_episodes_off_the_reset_pose():
@@ -92,12 +93,12 @@ def test_train_reset_noise_starts_episodes_off_the_reset_pose():
     off = make_train(env, config.replace(train_reset_noise=0.0)).init(jax.random.key(0))
     np.testing.assert_array_equal(off.env_state.env_state.q, 0.0)
     with pytest.raises(ValueError, match="train_reset_noise"):
-        PPOConfig(train_reset_noise=0.6)
+        TrainConfig.of(train_reset_noise=0.6)
 
     class NoNoise:  # a user's env whose params have no reset_noise
         default_params = object()
 
-    assert for_env(config, NoNoise()).train_reset_noise == 0.0
+    assert for_env(config, NoNoise()).curriculum.train_reset_noise == 0.0
 
 
 def test_stagger_episodes_spreads_the_first_episodes_over_the_horizon():

@@ -11,9 +11,10 @@ import pytest
 from test_ppo import TOY_CONFIG, PointReach
 
 from mara_mjx.ppo import checkpoint as ckpt
-from mara_mjx.ppo.config import PPOConfig
+from mara_mjx.ppo.config import TrainConfig
+from mara_mjx.ppo.members import member_axis, population
 from mara_mjx.ppo.policy import make_policy, policy_from_checkpoint
-from mara_mjx.ppo.train import RunnerState, make_train, member_axis, population
+from mara_mjx.ppo.train import RunnerState, make_train
 
 
 def _fake_member(key: jax.Array) -> RunnerState:
@@ -36,7 +37,7 @@ def _fake_run(state: RunnerState, n):
 
 
 def test_exploit_ranks_members_and_copies_the_best():
-    config = PPOConfig(
+    config = TrainConfig.of(
         num_envs=1, num_steps=1, total_timesteps=10, num_minibatches=1, population=5,
         exploit_every=0.2, exploit_fraction=0.4,
     )  # fmt: skip
@@ -66,7 +67,7 @@ def test_exploit_ranks_members_and_copies_the_best():
 
 
 def test_last_update_always_exploits():
-    config = PPOConfig(
+    config = TrainConfig.of(
         num_envs=1, num_steps=1, total_timesteps=3, num_minibatches=1, population=2,
         exploit_every=1.0,
     )  # fmt: skip
@@ -100,7 +101,7 @@ def test_population_trains_and_member_0_is_the_policy(toy_population):
     )
     obs = jnp.ones((5, 6))
     # the same policy back from a checkpoint
-    meta = {"ppo": trainer.config.to_dict(), "action_size": 3, "observation_size": 6}
+    meta = {**trainer.config.to_dict(), "action_size": 3, "observation_size": 6}
     loaded = policy_from_checkpoint(ckpt.state_to_arrays(state), meta)
     np.testing.assert_array_equal(loaded(obs), policy(obs))
     # and a seed-batched population (leading seed axis) takes member 0 of every seed
@@ -118,13 +119,13 @@ def test_population_trains_and_member_0_is_the_policy(toy_population):
 )
 def test_bad_population_settings_name_the_field(field, value):
     with pytest.raises(ValueError, match=field):
-        PPOConfig(**{field: value})
+        TrainConfig.of(**{field: value})
 
 
 def test_a_diverged_member_ranks_last_whatever_its_reward():
     """A member whose params turned NaN keeps a finite reward (the env holds the pose for
     NaN actions), so its fitness can be the best: the exploit step still replaces it."""
-    config = PPOConfig(
+    config = TrainConfig.of(
         num_envs=1, num_steps=1, total_timesteps=2, num_minibatches=1, population=3,
         exploit_every=1.0, exploit_fraction=0.34,
     )  # fmt: skip

@@ -37,6 +37,7 @@ from mara_mjx.ppo import (
     update_stats,
 )
 from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo.config import TrainConfig
 from mara_mjx.ppo.networks import forward, make_network
 from mara_mjx.ppo.train import stratified_minibatches
 
@@ -133,7 +134,7 @@ class PointReach:
         )
 
 
-TOY_CONFIG = PPOConfig(
+TOY_CONFIG = TrainConfig.of(
     num_envs=16,
     num_steps=16,
     total_timesteps=16 * 16 * 40,
@@ -316,17 +317,17 @@ def test_relative_actions_log_std_floor_and_hidden_obs():
     stats = RunningStats.create(12).replace(mean=jnp.full(12, 0.3), var=jnp.full(12, 4.0))
     outputs = {}
     for relative in (False, True):
-        config = PPOConfig(relative_actions=relative, log_std_floor=-3.0)
+        config = TrainConfig.of(relative_actions=relative, log_std_floor=-3.0)
         network = make_network(config, 6)
         params = network.init(jax.random.key(0), obs[0], obs[0])  # same params both times
         params["params"]["log_std"] = jnp.array([-5.0, -3.0, -3.0, -5.0, -4.0, -10.0])
-        outputs[relative] = forward(network, params, stats, obs, config.obs_clip)
+        outputs[relative] = forward(network, params, stats, obs, config.ppo.obs_clip)
     (mean_abs, log_std, value_abs), (mean_rel, _, value_rel) = outputs[False], outputs[True]
     assert float(jnp.abs(mean_abs).max()) > 1e-4  # the actor's output is not zero
     np.testing.assert_allclose(mean_rel, mean_abs + obs[:, :6], rtol=1e-6, atol=1e-6)
     np.testing.assert_array_equal(value_rel, value_abs)
     np.testing.assert_array_equal(log_std, jnp.full((2, 6), -3.0))
-    hidden = PPOConfig(hidden_obs=(3, 11))
+    hidden = TrainConfig.of(hidden_obs=(3, 11))
     network = make_network(hidden, 6)
     params = network.init(jax.random.key(0), obs[0], obs[0])
     changed = obs.at[:, 3].add(5.0).at[:, 11].add(-7.0)
@@ -360,14 +361,14 @@ def test_running_stats_match_numpy():
 def test_lr_schedules():
     linear = make_lr_schedule(PPOConfig(num_steps=8, total_timesteps=80, num_minibatches=2))
     np.testing.assert_allclose([linear(0), linear(5), linear(9)], [3e-4, 1.5e-4, 3e-5], rtol=1e-5)
-    ros = PRESETS["ros2learn"]
+    ros = PRESETS["ros2learn"].ppo
     exp = make_lr_schedule(ros)
     np.testing.assert_allclose(exp(100), 3e-3 * math.exp(-0.1918), rtol=1e-5)
     np.testing.assert_allclose(exp(10_000), 1e-4, rtol=1e-6)  # floored
 
 
 def test_presets_hold_the_papers_hyperparameters():
-    paper = PRESETS["paper"]
+    paper = PRESETS["paper"].ppo
     assert (paper.num_envs, paper.num_steps, paper.num_minibatches) == (1, 2048, 32)
     assert (paper.update_epochs, paper.gamma, paper.gae_lambda, paper.clip_eps) == (
         10,
@@ -379,20 +380,21 @@ def test_presets_hold_the_papers_hyperparameters():
     assert paper.hidden_sizes == (64, 64) and paper.total_timesteps == 10**8
     assert paper.lr_schedule == "linear" and not paper.normalize_obs
     assert (paper.adam_eps, paper.max_grad_norm, paper.clip_value) == (1e-5, 0.5, True)
-    ros = PRESETS["ros2learn"]
+    ros = PRESETS["ros2learn"].ppo
     assert (ros.hidden_sizes, ros.num_steps, ros.num_minibatches) == ((16, 16), 1024, 4)
     assert (ros.clip_eps, ros.vf_coef, ros.lr_schedule) == (0.25, 1.0, "exp")
     default = PRESETS["default"]
-    assert default.num_envs >= 1024 and default.normalize_obs
+    assert default.ppo.num_envs >= 1024 and default.ppo.normalize_obs
     # the orientation fixes of benchmarks/NOTES.md section 12 are on in the default
-    assert default.canonical_quat and default.bound_coef == 1.0
-    assert default.init_log_std == -1.0 and default.train_collision_penalty == 1.0
-    assert default.train_reward == "beta=0.5,gamma=0.02" and default.train_reward_until == 0.5
+    assert default.policy.canonical_quat and default.curriculum.bound_coef == 1.0
+    assert default.ppo.init_log_std == -1.0 and default.curriculum.train_collision_penalty == 1.0
+    assert default.curriculum.train_reward == "beta=0.5,gamma=0.02"
+    assert default.curriculum.train_reward_until == 0.5
     # Overridable in one call; the preset itself is never mutated.
     tuned = default.replace(num_envs=4096, learning_rate=1e-3)
-    assert tuned.num_envs == 4096 and default.num_envs == 2048
+    assert tuned.ppo.num_envs == 4096 and default.ppo.num_envs == 2048
     # cpu: the default with the fields of benchmarks/results/cpu/MARA/config.json changed
-    cpu, base = PRESETS["cpu"].to_dict(), default.to_dict()
+    cpu, base = PRESETS["cpu"].flat(), default.flat()
     changed = {k: v for k, v in cpu.items() if v != base[k]}
     assert changed == {
         "num_envs": 256,
@@ -418,7 +420,7 @@ def test_presets_hold_the_papers_hyperparameters():
         ({"hidden_sizes": ()}, "hidden_sizes"),
         ({"num_envs": 0}, "num_envs"),
         ({"num_envs": 2**20, "total_timesteps": 2**60}, "overflows"),
-        ({"bogus": 1}, "unknown PPOConfig field"),
+        ({"bogus": 1}, "unknown PPOConfig, PolicyConfig or CurriculumConfig field"),
         ({"reward_scale": 0.0}, "reward_scale"),
         ({"reward_scale": float("nan")}, "reward_scale"),
     ],
@@ -430,7 +432,8 @@ def test_invalid_config_raises_clear_error(overrides, message):
 
 def test_config_round_trips_through_json_dict():
     for config in PRESETS.values():
-        assert PPOConfig.from_dict(config.to_dict()) == config
+        assert TrainConfig.from_dict(config.to_dict()) == config
+        assert TrainConfig.from_dict(config.flat()) == config  # a pre-split flat dict
     assert RunConfig.from_dict(RunConfig().to_dict()) == RunConfig()
 
 
@@ -481,7 +484,7 @@ def test_toy_env_follows_the_env_contract():
 
 def test_ppo_learns_the_toy_task(toy_history):
     _, history = toy_history
-    assert history["valid"].all() and len(history["valid"]) == TOY_CONFIG.num_updates
+    assert history["valid"].all() and len(history["valid"]) == TOY_CONFIG.ppo.num_updates
     first, last = history["reward_mean"][:3].mean(), history["reward_mean"][-3:].mean()
     # An untrained policy (mean ~0, std 1) scores about -5 * 1.1; a trained one near 0.
     assert first < -3.0
@@ -515,7 +518,7 @@ def test_checkpoint_round_trip_resumes_exactly(toy, tmp_path):
         "env_config": {},
         "observation_size": 6,
         "action_size": 3,
-        "ppo": TOY_CONFIG.to_dict(),
+        **TOY_CONFIG.to_dict(),
         "run": {},
         "eval": {},
         "progress": {"update": 2},
@@ -596,10 +599,10 @@ def test_task_space_actions_are_one_damped_least_squares_step():
     )  # fmt: skip
     out = {}
     for task in (False, True):
-        config = PPOConfig(relative_actions=True, task_space_actions=task)
+        config = TrainConfig.of(relative_actions=True, task_space_actions=task)
         network = make_network(config, 6)
         params = network.init(jax.random.key(3), obs[0], obs[0])
-        out[task] = forward(network, params, None, obs, config.obs_clip)
+        out[task] = forward(network, params, None, obs, config.ppo.obs_clip)
     u = out[False][0] - obs[:, :6]  # the actor's raw output (same params both times)
     assert float(jnp.abs(u).max()) > 1e-4
     model = load_model()
@@ -617,9 +620,9 @@ def test_task_space_actions_are_one_damped_least_squares_step():
     np.testing.assert_array_equal(out[True][1], out[False][1])
     np.testing.assert_array_equal(out[True][2], out[False][2])
     with pytest.raises(ValueError, match="relative_actions"):
-        PPOConfig(task_space_actions=True)
+        TrainConfig.of(task_space_actions=True)
     with pytest.raises(ValueError, match="6 joints"):
-        net = make_network(PPOConfig(relative_actions=True, task_space_actions=True), 4)
+        net = make_network(TrainConfig.of(relative_actions=True, task_space_actions=True), 4)
         net.init(jax.random.key(0), obs[0], obs[0])
 
 
@@ -627,21 +630,21 @@ def test_max_joint_step_squashes_the_mean_and_is_validated():
     """max_joint_step m: mean = q + m tanh(out / m), so every joint target is within m of
     the observed joints and small outputs pass nearly unchanged; invalid values refused."""
     obs = jnp.array([[0.3, -0.4, 0.8, 0.1, 0.9, -0.2, 0.05, -0.1, 0.2, 0.0, 0.0, 0.0]])
-    config = PPOConfig(relative_actions=True)
+    config = TrainConfig.of(relative_actions=True)
     network = make_network(config, 6)
     params = network.init(jax.random.key(0), obs[0], obs[0])
     params = jax.tree.map(lambda x: 3.0 * x + 0.2, params)  # outputs well beyond m
-    free = forward(network, params, None, obs, config.obs_clip)[0] - obs[:, :6]
+    free = forward(network, params, None, obs, config.ppo.obs_clip)[0] - obs[:, :6]
     m = 0.015
     limited = make_network(config.replace(max_joint_step=m), 6)
-    got = forward(limited, params, None, obs, config.obs_clip)[0] - obs[:, :6]
+    got = forward(limited, params, None, obs, config.ppo.obs_clip)[0] - obs[:, :6]
     assert float(jnp.abs(free).max()) > 10 * m  # the squash has something to do
     np.testing.assert_allclose(got, m * jnp.tanh(free / m), rtol=1e-5, atol=1e-7)
     assert float(jnp.abs(got).max()) <= m * (1 + 1e-6)
     with pytest.raises(ValueError, match="relative_actions"):
-        PPOConfig(max_joint_step=0.01)
+        TrainConfig.of(max_joint_step=0.01)
     with pytest.raises(ValueError, match="max_joint_step"):
-        PPOConfig(relative_actions=True, max_joint_step=-0.1)
+        TrainConfig.of(relative_actions=True, max_joint_step=-0.1)
 
 
 def test_orientation_bonus_peaks_at_the_exact_pose_and_skips_collisions():
@@ -649,15 +652,15 @@ def test_orientation_bonus_peaks_at_the_exact_pose_and_skips_collisions():
     slope in theta at the goal is w / theta0; cleared for a task without orientation."""
     import mara_mjx
     from mara_mjx.ppo.config import for_env
-    from mara_mjx.ppo.train import orientation_bonus
+    from mara_mjx.ppo.curriculum import orientation_bonus
 
-    config = PPOConfig(orientation_bonus=5.0, orientation_bonus_angle=0.1)
+    config = TrainConfig.of(orientation_bonus=5.0, orientation_bonus_angle=0.1)
     metrics = {
         "distance": jnp.array([0.0, 0.0, 0.001, 0.0, 0.0]),
         "angle": jnp.array([0.0, 0.01, 0.0, 0.2, 0.0]),
         "collided": jnp.array([False, False, False, False, True]),
     }
-    got = np.asarray(orientation_bonus(metrics, config))
+    got = np.asarray(orientation_bonus(metrics, config.curriculum))
     d, theta = np.array([0, 0, 0.001, 0, 0]), np.array([0, 0.01, 0, 0.2, 0])
     expected = 5.0 * np.exp(-d / 0.005 - theta / 0.1)
     expected[4] = 0.0
@@ -666,10 +669,10 @@ def test_orientation_bonus_peaks_at_the_exact_pose_and_skips_collisions():
     # one degree near the goal is worth ~ w / theta0 * pi / 180 = 0.87 (the env's: ~0.01)
     slope = (got[0] - got[1]) / 0.01
     assert 45.0 < slope < 50.0
-    assert for_env(config, mara_mjx.make("MARA")).orientation_bonus == 0.0
-    assert for_env(config, mara_mjx.make("MARAOrient")).orientation_bonus == 5.0
+    assert for_env(config, mara_mjx.make("MARA")).curriculum.orientation_bonus == 0.0
+    assert for_env(config, mara_mjx.make("MARAOrient")).curriculum.orientation_bonus == 5.0
     with pytest.raises(ValueError, match="orientation_bonus_angle"):
-        PPOConfig(orientation_bonus_angle=0.0)
+        TrainConfig.of(orientation_bonus_angle=0.0)
 
 
 def test_ik_prior_step_is_a_newton_step_toward_the_observed_pose():
@@ -731,26 +734,26 @@ def test_ik_prior_residual_adds_the_ik_step_and_is_validated():
     obs = jnp.stack([obs, obs.at[:6].set(jnp.array([0.3, -0.4, 0.8, 0.1, 0.9, -0.2]))])
     out = {}
     for prior in ("features", "residual"):
-        config = for_env(PPOConfig(relative_actions=True, ik_prior=prior), env)
-        assert config.quat_index == 9
+        config = for_env(TrainConfig.of(relative_actions=True, ik_prior=prior), env)
+        assert config.policy.quat_index == 9
         network = make_network(config, 6)
         params = network.init(jax.random.key(3), obs[0], obs[0])
-        out[prior] = forward(network, params, None, obs, config.obs_clip)
+        out[prior] = forward(network, params, None, obs, config.ppo.obs_clip)
     step = ik_prior_step(obs, 9)[0]
     assert float(jnp.abs(step).max()) > 0.01
     np.testing.assert_allclose(out["residual"][0], out["features"][0] + step, atol=1e-6)
     np.testing.assert_array_equal(out["residual"][2], out["features"][2])
     with pytest.raises(ValueError, match=r"ik_prior='ik' is not valid; choose one of"):
-        PPOConfig(relative_actions=True, ik_prior="ik")
+        TrainConfig.of(relative_actions=True, ik_prior="ik")
     with pytest.raises(ValueError, match="relative_actions"):
-        PPOConfig(ik_prior="residual")
+        TrainConfig.of(ik_prior="residual")
 
     class Other:
         observation_layout = [{"name": "x", "start": 0, "stop": 4}]
         action_size = 2
 
     with pytest.raises(ValueError, match="MARA arm's observation"):
-        for_env(PPOConfig(ik_prior="features"), Other())
+        for_env(TrainConfig.of(ik_prior="features"), Other())
 
 
 def _residual_mean(config: PPOConfig, batch: jax.Array) -> jax.Array:
@@ -761,7 +764,7 @@ def _residual_mean(config: PPOConfig, batch: jax.Array) -> jax.Array:
     head = params["params"]["actor"]
     last = sorted(k for k in head if k.startswith("Dense"))[-1]
     head[last]["bias"] = head[last]["bias"] + 0.05
-    return forward(network, params, None, batch, config.obs_clip)[0]
+    return forward(network, params, None, batch, config.ppo.obs_clip)[0]
 
 
 def test_ik_gate_fades_the_learnt_correction_to_zero_at_the_target():
@@ -779,7 +782,9 @@ def test_ik_gate_fades_the_learnt_correction_to_zero_at_the_target():
     batch = jnp.stack([obs, at_goal, near])
     outs = {}
     for gate in (0.0, 0.01):
-        config = for_env(PPOConfig(relative_actions=True, ik_prior="residual", ik_gate=gate), env)
+        config = for_env(
+            TrainConfig.of(relative_actions=True, ik_prior="residual", ik_gate=gate), env
+        )
         outs[gate] = _residual_mean(config, batch)
     q, step = batch[:, :6], ik_prior_step(batch, 9)[0]
     g = ik_gate(batch, 0.01)
@@ -791,13 +796,13 @@ def test_ik_gate_fades_the_learnt_correction_to_zero_at_the_target():
     np.testing.assert_allclose(outs[0.01], q + step + g[:, None] * correction, atol=1e-5)
     np.testing.assert_allclose(outs[0.01][1], q[1] + step[1], atol=1e-5)
     with pytest.raises(ValueError, match="ik_gate=0.01 gates the correction"):
-        PPOConfig(relative_actions=True, ik_prior="features", ik_gate=0.01)
+        TrainConfig.of(relative_actions=True, ik_prior="features", ik_gate=0.01)
     with pytest.raises(ValueError, match="ik_gate"):
-        PPOConfig(relative_actions=True, ik_prior="residual", ik_gate=-1.0)
+        TrainConfig.of(relative_actions=True, ik_prior="residual", ik_gate=-1.0)
     with pytest.raises(ValueError, match="ik_wrap=true changes the IK step"):
-        PPOConfig(ik_wrap=True)
+        TrainConfig.of(ik_wrap=True)
     with pytest.raises(ValueError, match="ik_gate_wrap=true closes the gate"):
-        PPOConfig(relative_actions=True, ik_prior="residual", ik_wrap=True, ik_gate_wrap=True)
+        TrainConfig.of(relative_actions=True, ik_prior="residual", ik_wrap=True, ik_gate_wrap=True)
 
 
 def test_pose_step_wrap_takes_the_last_joint_the_long_way_past_its_limit():
@@ -892,7 +897,7 @@ def test_ik_gate_wrap_leaves_the_ik_step_alone_while_it_takes_the_long_way():
     outs = {}
     for gate_wrap in (False, True):
         config = for_env(
-            PPOConfig(
+            TrainConfig.of(
                 relative_actions=True,
                 ik_prior="residual",
                 ik_gate=0.01,
@@ -912,16 +917,16 @@ def test_ik_gate_wrap_leaves_the_ik_step_alone_while_it_takes_the_long_way():
 def test_train_limit_penalty_is_zero_inside_the_soft_range_and_one_at_a_limit():
     """limit_penalty: per joint 0 within f of the half-range, 1 at the limit, linear
     between, summed over joints; the fields are validated."""
-    from mara_mjx.ppo.train import limit_penalty
+    from mara_mjx.ppo.curriculum import limit_penalty
 
     lower, upper = jnp.array([-1.0, -3.0]), jnp.array([1.0, 1.0])  # centres 0, -1; halves 1, 2
     q = jnp.array([[0.0, -1.0], [0.9, -1.0], [0.95, -1.0], [1.0, -1.0], [-1.0, 1.0], [1.0, -3.0]])
     got = np.asarray(limit_penalty(q, lower, upper, 0.9))
     np.testing.assert_allclose(got, [0.0, 0.0, 0.5, 1.0, 2.0, 2.0], atol=1e-5)
     with pytest.raises(ValueError, match="train_limit_penalty"):
-        PPOConfig(train_limit_penalty=-1.0)
+        TrainConfig.of(train_limit_penalty=-1.0)
     with pytest.raises(ValueError, match="train_limit_soft"):
-        PPOConfig(train_limit_soft=1.0)
+        TrainConfig.of(train_limit_soft=1.0)
 
 
 def test_rate_limited_keeps_the_direction_and_bounds_every_joint_step():
@@ -984,8 +989,8 @@ def test_probe_reach_steps_measures_the_saved_policy_from_the_reset_and_changes_
     """PPOConfig.probe_reach_steps: a call of `run` ends with the deterministic policy's
     rollout from the reset; `reach_error_mm` is its mean per-axis |e| at the last step, on
     the call's last valid row (NaN elsewhere); the training itself is bitwise the same."""
+    from mara_mjx.ppo.curriculum import PROBE_REACH_EPISODES
     from mara_mjx.ppo.networks import forward
-    from mara_mjx.ppo.train import PROBE_REACH_EPISODES
 
     trainer, state = toy
     probing = make_train(PointReach(), TOY_CONFIG.replace(probe_reach_steps=3), updates_per_call=4)
@@ -1029,7 +1034,7 @@ def test_milestones_use_the_reach_probe_where_the_rows_have_it():
 def test_probe_reach_steps_under_seeds_is_each_seeds_own_probe():
     """probe_reach_steps in a seeds-vmapped program (make_seed_trainer): every seed's
     `reach_error_mm` is on its last valid row and equals the single run of that seed's."""
-    from mara_mjx.ppo.train import make_seed_trainer
+    from mara_mjx.ppo.members import make_seed_trainer
 
     config = TOY_CONFIG.replace(probe_reach_steps=2)
     trainer = make_train(PointReach(), config, updates_per_call=2, devices=1)
@@ -1041,3 +1046,14 @@ def test_probe_reach_steps_under_seeds_is_each_seeds_own_probe():
         _, alone = trainer.run(trainer.init(jax.random.key(s)), 1)
         np.testing.assert_allclose(reach[i, 0], float(alone["reach_error_mm"][0]), rtol=1e-5)
     assert abs(reach[0, 0] - reach[1, 0]) > 1e-3  # the seeds' own policies
+
+
+def test_toy_training_gives_the_presplit_bits(toy_history):
+    """The 40 toy updates give the params recorded before the PPOConfig split
+    (test_config_split.PRESPLIT; on other jax versions, skipped)."""
+    from test_config_split import PRESPLIT, digest, same_versions
+
+    if not same_versions():
+        pytest.skip(f"reference bits recorded on jax {PRESPLIT['versions']}")
+    state, _ = toy_history
+    assert digest((state.params, state.obs_stats)) == PRESPLIT["toy"]

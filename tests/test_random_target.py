@@ -33,8 +33,9 @@ from mara_mjx.envs.random_target import (
     random_target_config,
     with_targets,
 )
-from mara_mjx.ppo import PPOConfig, RunningStats
+from mara_mjx.ppo import RunningStats
 from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo.config import TrainConfig
 from mara_mjx.ppo.networks import make_network
 from mara_mjx.ppo.policy import load_policy
 
@@ -291,7 +292,7 @@ def run_dir(tmp_path_factory) -> Path:
     weights (as tests/test_play.py: nothing compiles here)."""
     folder = tmp_path_factory.mktemp("random_target") / "run"
     env = jitted(ORIENT).env
-    config = PPOConfig(hidden_sizes=(16, 16), relative_actions=True)
+    config = TrainConfig.of(hidden_sizes=(16, 16), relative_actions=True)
     network = make_network(config, env.action_size)
     obs = jax.ShapeDtypeStruct((env.observation_size,), jnp.float32)
     shapes = jax.eval_shape(network.init, jax.random.key(0), obs, obs)
@@ -303,7 +304,7 @@ def run_dir(tmp_path_factory) -> Path:
         "env_config": env.config.to_dict(),
         "observation_size": env.observation_size,
         "action_size": env.action_size,
-        "ppo": config.to_dict(),
+        **config.to_dict(),
         "run": {},
         "eval": {},
         "progress": {"update": 1, "env_steps": 1},

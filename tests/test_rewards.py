@@ -177,9 +177,9 @@ def test_train_cli_rejects_bad_reward_flags(flags, message, tmp_path, capsys):
 
 def test_train_reward_curriculum_start_must_be_in_range():
     from mara_mjx.ppo import make_train
-    from mara_mjx.ppo.config import PPOConfig
+    from mara_mjx.ppo.config import TrainConfig
 
     env = mara_mjx.make("MARA", check_target=False)
-    config = PPOConfig(num_envs=2, num_steps=2, num_minibatches=1, total_timesteps=4)
+    config = TrainConfig.of(num_envs=2, num_steps=2, num_minibatches=1, total_timesteps=4)
     with pytest.raises(ValueError, match=r"train_reward: .*alpha=0\.0 is outside"):
         make_train(env, config.replace(train_reward="alpha=0"))

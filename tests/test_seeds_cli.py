@@ -187,7 +187,7 @@ def test_population_run_trains_checkpoints_and_evaluates(users_env, tmp_path):
     proc = run_module(users_env, "mara_mjx.train", *args)
     assert proc.returncode == 0, proc.stderr[-4000:]
     config = json.loads((out / "config.json").read_text())
-    assert config["ppo"]["population"] == 2
+    assert config["curriculum"]["population"] == 2
     arrays, _ = ckpt.load_checkpoint(out / CKPT2)
     assert arrays["params/params/log_std"].shape == (2, 6)  # both members saved
     assert arrays["fitness"].shape == (2,)
@@ -211,7 +211,8 @@ def test_orient_task_default_trains_and_its_checkpoint_runs_without_the_training
     tiny += ["--probe_reach_steps", "5"]  # the Orient tasks' time to accuracy
     proc = run_module(users_env, "mara_mjx.train", *tiny, "--out", str(out))
     assert proc.returncode == 0, proc.stderr[-4000:]
-    ppo = json.loads((out / "config.json").read_text())["ppo"]
+    saved = json.loads((out / "config.json").read_text())
+    ppo = {**saved["policy"], **saved["curriculum"]}  # the sections the fields moved to
     assert ppo["ik_orient_first"] and ppo["train_ik_gate_roll"] and ppo["stagger_episodes"]
     assert ppo["train_ik_orient_loose"] and ppo["probe_reach_steps"] == 5
     rows = read_rows(out / "progress.csv")  # one update per call: every row probed
@@ -221,8 +222,8 @@ def test_orient_task_default_trains_and_its_checkpoint_runs_without_the_training
     assert proc.returncode == 0, proc.stderr[-4000:]
     assert json.loads(report.read_text())
     policy = make_policy(str(out / CKPT2))
-    assert policy.config.train_ik_gate_roll and not policy.network.ik_gate_roll
-    assert policy.config.train_ik_orient_loose and not policy.network.ik_orient_loose
+    assert policy.config.policy.train_ik_gate_roll and not policy.network.ik_gate_roll
+    assert policy.config.policy.train_ik_orient_loose and not policy.network.ik_orient_loose
     exported = tmp_path / "policy.npz"
     proc = run_module(users_env, "mara_mjx.export", str(out), str(exported))
     assert proc.returncode != 0 and "--preset default" in proc.stderr, proc.stderr[-2000:]

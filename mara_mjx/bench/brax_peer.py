@@ -92,7 +92,7 @@ def unmatched(config: PPOConfig) -> dict[str, Any]:
     """Our values of the PPOConfig fields brax has no equivalent for (see brax_kwargs)."""
     names = ("lr_schedule", "adam_eps", "relative_actions", "init_log_std", "log_std_floor")
     names += ("obs_clip",)
-    d = config.to_dict()
+    d = config.flat()  # a TrainConfig: every section's fields
     return {name: d[name] for name in names if name in d}
 
 

@@ -42,7 +42,7 @@ from mara_mjx.bench.ppo_runs import (
     train_ours,
 )
 from mara_mjx.bench.runner import BenchConfig, Study
-from mara_mjx.ppo import PRESETS, EvalConfig, EvalResult, PPOConfig, make_policy
+from mara_mjx.ppo import PRESETS, EvalConfig, EvalResult, TrainConfig, make_policy
 from mara_mjx.ppo.evaluation import make_evaluate
 from mara_mjx.viz.plots import finish_figure
 
@@ -116,7 +116,7 @@ class TrainStudyConfig(BenchConfig):
         # brax is optional: without it the brax study's settings are checked when it runs
         # (and every other study's flags still build: the parser makes each default config)
         if self.study == "brax" and importlib.util.find_spec("brax") is not None:
-            brax_kwargs(config, self.episode_length)
+            brax_kwargs(config.ppo, self.episode_length)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,7 +126,7 @@ class BraxStudyConfig(TrainStudyConfig):
     study: ClassVar[str] = "brax"
 
 
-def ppo_config(args: TrainStudyConfig) -> PPOConfig:
+def ppo_config(args: TrainStudyConfig) -> TrainConfig:
     """The preset with the command line's overrides (validated by PPOConfig). For the
     brax study the total is rounded down to whole calls of `updates_per_call` updates
     (at least one), so that brax's epochs and our calls cover the same env steps."""
@@ -140,9 +140,9 @@ def ppo_config(args: TrainStudyConfig) -> PPOConfig:
     }
     config = PRESETS[args.preset].replace(**{k: v for k, v in fields.items() if v is not None})
     if args.study == "brax":
-        per_call = args.updates_per_call * config.batch_size
-        total = max(1, config.total_timesteps // per_call) * per_call
-        if total != config.total_timesteps:
+        per_call = args.updates_per_call * config.ppo.batch_size
+        total = max(1, config.ppo.total_timesteps // per_call) * per_call
+        if total != config.ppo.total_timesteps:
             config = config.replace(total_timesteps=total)
     return config
 
@@ -185,10 +185,10 @@ def train_study(args: TrainStudyConfig) -> list[dict[str, Any]]:
             **run.summary(),
             **evals,
             "preset": args.preset,
-            "num_envs": config.num_envs,
+            "num_envs": config.ppo.num_envs,
             "updates_per_call": args.updates_per_call,
             "episode_length": args.episode_length,
-            "ppo": config.to_dict(),
+            "ppo": config.flat(),
             "score": dataclasses.asdict(scoring),
         }
         records.append(rec)
@@ -208,22 +208,22 @@ def brax_study(args: BraxStudyConfig) -> list[dict[str, Any]]:
     """brax's PPO and ours on each task, same env steps, snapshots scored alike."""
     config = ppo_config(args)
     scoring = score_config(args)
-    kwargs = brax_kwargs(config, args.episode_length)
+    kwargs = brax_kwargs(config.ppo, args.episode_length)
     kwargs_json = {k: v for k, v in kwargs.items() if k != "network_factory"}
     kwargs_json["network"] = (
-        f"make_ppo_networks(policy and value {list(config.hidden_sizes)}, tanh)"
+        f"make_ppo_networks(policy and value {list(config.ppo.hidden_sizes)}, tanh)"
     )
     records = []
     for task in args.tasks:
         env = mara_mjx.make(task, max_episode_steps=args.episode_length)
         ours, _ = train_ours(env, task, config, args.updates_per_call)
         score_snapshots(ours, make_scorer(env, _act_ours, scoring))
-        theirs, act = train_brax(task, config, args.updates_per_call, args.episode_length)
+        theirs, act = train_brax(task, config.ppo, args.updates_per_call, args.episode_length)
         score_snapshots(theirs, make_scorer(env, act, scoring))
         a, b = ours.summary(), theirs.summary()
-        common = {"score": dataclasses.asdict(scoring), "num_envs": config.num_envs}
+        common = {"score": dataclasses.asdict(scoring), "num_envs": config.ppo.num_envs}
         b = {**b, **common, "brax_kwargs": kwargs_json, "unmatched": unmatched(config)}
-        a = {**a, **common, "preset": args.preset, "ppo": config.to_dict()}
+        a = {**a, **common, "preset": args.preset, "ppo": config.flat()}
         a["brax_over_ours_time_to_5mm"] = _ratio(b.get("settled_to_5mm_s"), a["settled_to_5mm_s"])
         a["ours_over_brax_env_steps_per_s"] = _ratio(a["env_steps_per_s"], b["env_steps_per_s"])
         records += [a, b]

@@ -214,7 +214,7 @@ def train_ours(
     with CompileClock() as clock:
         run = Run("ours (mara_mjx.ppo)", task)
         trainer = make_train(env, config, updates_per_call)
-        state = trainer.init(jax.random.key(config.seed))
+        state = trainer.init(jax.random.key(trainer.config.ppo.seed))
         run.add(clock, 0, jax.device_get(make_policy(state, config)))
         done, per_update = 0, trainer.steps_per_update
         bar = tqdm(

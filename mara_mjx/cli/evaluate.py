@@ -165,7 +165,7 @@ def _main(args: argparse.Namespace) -> int:
         "env_name": name,
         "env_config": env.config.to_dict(),
         "eval": config.to_dict(),
-        "ppo": meta["ppo"],
+        **{k: meta[k] for k in ("ppo", "policy", "curriculum")},
         "trained": meta["progress"],
         **runs.provenance(),
         "training_versions": meta.get("versions"),

@@ -17,7 +17,7 @@ quaternion block obs[quat_index:quat_index + 4] multiplied by the sign of its w 
 run used `canonical_quat` (quat_index >= 0 in the meta), z[..., hidden_obs] = 0,
 then the actor's tanh MLP (linear output layer), plus obs[..., :6] (the current joint
 positions) when the run used `relative_actions`; a policy with an IK finish
-(PPOConfig.ik_finish; format mara_mjx.export/2, meta "ik_finish") first replaces that
+(PolicyConfig.ik_finish; format mara_mjx.export/2, meta "ik_finish") first replaces that
 displacement near the target by the IK step (mara_mjx/deploy/ik_numpy.py). The action is an
 absolute joint target (rad) for motor1..motor6; the env clips it to the joint limits
 (`policy(obs, clip=True)` does the same here). The .onnx file computes the same graph
@@ -32,7 +32,7 @@ File layout (`np.load(path)`; no pickles):
                        hidden_sizes, activation, normalize_obs, obs_clip, obs_var_eps,
                        relative_actions (add obs[..., :action_size] to the MLP output),
                        max_joint_step (> 0: the MLP output d becomes m tanh(d / m) first),
-                       ik_finish (the IK finish of PPOConfig.ik_finish: its radius, the
+                       ik_finish (the IK finish of PolicyConfig.ik_finish: its radius, the
                        arm's chain and task_space's constants; mara_mjx/deploy/ik_numpy.py runs
                        it on the MLP's joint displacement before q is added),
                        ik_finish_dropped (m; > 0: the checkpoint's IK finish within that
@@ -87,7 +87,7 @@ def export_policy(
 ) -> Path:
     """Write the deterministic policy of `checkpoint` (a checkpoint file, or a run folder:
     its newest checkpoint) to `out_path`, atomically: .npz (numpy) or .onnx (an ONNX
-    model, needs the `onnx` package). A policy with an IK finish (PPOConfig.ik_finish, the
+    model, needs the `onnx` package). A policy with an IK finish (PolicyConfig.ik_finish, the
     position tasks' presets) keeps it in .npz (the arm's chain in the meta's ik_finish,
     run by mara_mjx/deploy/ik_numpy.py); .onnx refuses it unless `drop_ik_finish`, which writes
     the learnt policy alone (the meta's ik_finish_dropped says so) in either format. An
@@ -121,7 +121,7 @@ def export_policy(
     source = ckpt.find_checkpoint(checkpoint)
     arrays, meta = ckpt.load_checkpoint(source)
     policy = policy_io.policy_from_checkpoint(arrays, meta)
-    config = policy.config
+    config, ppo = policy.config.policy, policy.config.ppo
     # options whose actions need the arm's Jacobian, which the numpy/ONNX MLP does not have
     for option, value in (
         ("ik_prior", getattr(config, "ik_prior", "")),
@@ -164,7 +164,7 @@ def export_policy(
         )
     out: dict[str, np.ndarray] = {}
     actor = policy.params["params"]["actor"]
-    n_layers = len(config.hidden_sizes) + 1
+    n_layers = len(ppo.hidden_sizes) + 1
     for i in range(n_layers):
         layer = actor[f"Dense_{i}"]
         out[f"layer_{i}/kernel"] = np.asarray(layer["kernel"], np.float32)
@@ -179,10 +179,10 @@ def export_policy(
         "env_config": env_config,
         "observation_size": int(meta["observation_size"]),
         "action_size": int(meta["action_size"]),
-        "hidden_sizes": list(config.hidden_sizes),
+        "hidden_sizes": list(ppo.hidden_sizes),
         "activation": "tanh",
         "normalize_obs": policy.obs_stats is not None,
-        "obs_clip": float(config.obs_clip),
+        "obs_clip": float(ppo.obs_clip),
         "obs_var_eps": OBS_VAR_EPS,
         "relative_actions": bool(config.relative_actions),
         "max_joint_step": float(getattr(config, "max_joint_step", 0.0)),
@@ -304,7 +304,7 @@ class NumpyPolicy:
             )
         x = raw = x.astype(np.float64)
         quat = int(self.meta.get("quat_index", -1))
-        if quat >= 0:  # canonical sign, w >= 0 (PPOConfig.canonical_quat)
+        if quat >= 0:  # canonical sign, w >= 0 (PolicyConfig.canonical_quat)
             x = x.copy()
             sign = np.where(x[..., quat : quat + 1] < 0, -1.0, 1.0)
             x[..., quat : quat + 4] *= sign
@@ -322,9 +322,9 @@ class NumpyPolicy:
                 x = np.tanh(x)
         if self.meta.get("relative_actions", False):
             step = float(self.meta.get("max_joint_step", 0.0))
-            if step > 0.0:  # PPOConfig.max_joint_step
+            if step > 0.0:  # PolicyConfig.max_joint_step
                 x = step * np.tanh(x / step)
-            if self._finish is not None:  # PPOConfig.ik_finish (mara_mjx/deploy/ik_numpy.py)
+            if self._finish is not None:  # PolicyConfig.ik_finish (mara_mjx/deploy/ik_numpy.py)
                 x = self._finish(raw[..., : self.action_size], raw[..., 6:9], x)
             x = x + raw[..., : self.action_size]
         if clip:

@@ -1,7 +1,7 @@
 """Several seeds in one run: `python -m mara_mjx.train --env T --seeds N`.
 
 N independent PPO runs, seeds ppo.seed .. ppo.seed + N - 1, train in one jitted program
-(`mara_mjx.ppo.train.make_seed_trainer`: the Trainer vmapped over a leading seed axis,
+(`mara_mjx.ppo.members.make_seed_trainer`: the Trainer vmapped over a leading seed axis,
 which is sharded over the devices when there are several; each seed's envs stay on one
 device). Seed s computes what `--seed s` alone computes, up to floating-point reduction
 order. The run folder:
@@ -50,8 +50,8 @@ from mara_mjx.cli.common import UserError
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import logger, seed_eval
 from mara_mjx.ppo.divergence import check_finite
+from mara_mjx.ppo.members import make_seed_trainer, take_seed
 from mara_mjx.ppo.policy import make_policy
-from mara_mjx.ppo.train import make_seed_trainer, take_seed
 from mara_mjx.runtime import files, outputs, runs, sharding
 
 SEEDS_JSON = "seeds.json"
@@ -174,7 +174,7 @@ class Lane:
 
 def train(plan: Any, env: Any, trainer: Any, host: Host) -> int:
     """The train CLI for plan.run.seeds > 1 (trainer built with devices=1)."""
-    seeds = tuple(range(plan.ppo.seed, plan.ppo.seed + plan.run.seeds))
+    seeds = tuple(range(plan.config.ppo.seed, plan.config.ppo.seed + plan.run.seeds))
     st = make_seed_trainer(trainer, seeds, devices=sharding.device_count(plan.run.devices))
     top = plan.out
     locks = [_claim(top)]
@@ -213,7 +213,7 @@ def _train(plan, env, trainer, host: Host, st, seeds, locks: list) -> int:
     for s in seeds:
         p = dataclasses.replace(
             plan,
-            ppo=plan.ppo.replace(seed=s),
+            config=plan.config.replace(seed=s),
             run=plan.run.replace(seeds=1, out=str(folder(top, s))),
             out=folder(top, s),
             checkpoint=None if name is None else folder(plan.source_run, s) / "checkpoints" / name,
@@ -240,7 +240,7 @@ def _train(plan, env, trainer, host: Host, st, seeds, locks: list) -> int:
         runs.write_json(lane.plan.out / "config.json", resolved)
     resolved = {
         **lanes[0].meta,
-        "ppo": plan.ppo.to_dict(),
+        **plan.config.to_dict(),
         "run": plan.run.replace(out=str(top)).to_dict(),
     }
     host.announce({**resolved, "seeds": list(seeds)})
@@ -260,9 +260,9 @@ def _train(plan, env, trainer, host: Host, st, seeds, locks: list) -> int:
                 state = st.init()
             print(
                 f"{plan.env_name}: {len(seeds)} seeds {seeds[0]}..{seeds[-1]} x "
-                f"{trainer.num_updates} updates of {plan.ppo.num_envs} envs x "
-                f"{plan.ppo.num_steps} steps, {jax.default_backend()} backend; the first call "
-                "compiles",
+                f"{trainer.num_updates} updates of {plan.config.ppo.num_envs} envs x "
+                f"{plan.config.ppo.num_steps} steps, {jax.default_backend()} backend; the first "
+                "call compiles",
                 flush=True,
             )
             state = _loop(st, state, lanes, plan, host)
@@ -361,7 +361,9 @@ def _finish(env, state, lanes: list[Lane], plan, host: Host, orientation: bool) 
     the evaluation of all seeds in one vmapped program, then the summary across seeds."""
     results = None
     if plan.run.evaluate:
-        results = seed_eval.evaluate_seeds(env, make_policy(state, plan.ppo), plan.eval, len(lanes))
+        results = seed_eval.evaluate_seeds(
+            env, make_policy(state, plan.config), plan.eval, len(lanes)
+        )
     rows = []
     for i, lane in enumerate(lanes):
         result = None if results is None else results[i]

@@ -7,7 +7,8 @@
     python -m mara_mjx.train --resume runs/MARA-20250101-120000  # continue exactly
     python -m mara_mjx.train --env MARA --seeds 5     # seeds 0..4, one program (cli/seeds.py)
 
-Every field of PPOConfig, RunConfig, EvalConfig and the env's EnvConfig is a flag
+Every field of TrainConfig's sections (PPOConfig, PolicyConfig, CurriculumConfig), RunConfig,
+EvalConfig and the env's EnvConfig is a flag
 (`--field` or `--section.field`; see --help). The run folder (--out, default
 runs/<env>-<timestamp>) receives config.json, progress.csv (one row per update),
 TensorBoard events (tb/), checkpoints (checkpoints/ckpt_<update>.npz), and at the end
@@ -75,8 +76,9 @@ from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import logger, warmup
 from mara_mjx.ppo.divergence import check_finite
 from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table, make_evaluate
+from mara_mjx.ppo.metrics import num_parameters
 from mara_mjx.ppo.policy import make_policy
-from mara_mjx.ppo.train import Trainer, make_train, num_parameters
+from mara_mjx.ppo.train import Trainer, make_train
 from mara_mjx.runtime import distributed, files, runs, sharding
 
 PROG = "mara_mjx.train"
@@ -113,11 +115,11 @@ def _main(args: argparse.Namespace) -> int:
         raise UserError(f"cannot build env {plan.env_name}: {e}") from e
     try:  # cheap (nothing is compiled yet): device and batch-divisibility errors first
         devices = 1 if plan.run.seeds > 1 else plan.run.devices  # seeds: see mara_mjx.cli.seeds
-        trainer = make_train(env, plan.ppo, plan.run.updates_per_call, devices)
+        trainer = make_train(env, plan.config, plan.run.updates_per_call, devices)
     except ValueError as e:
         raise UserError(str(e)) from e
     # env-dependent fields resolved (quat_index): saved with every checkpoint, policies read alike
-    plan = dataclasses.replace(plan, ppo=trainer.config)
+    plan = dataclasses.replace(plan, config=trainer.config)
     announce = functools.partial(_announce, plan, trainer, args.verbose)
     if plan.run.seeds > 1:
         host = seeds.Host(run_meta, finish, STOP, elapsed, announce)
@@ -170,17 +172,19 @@ def _train(plan: Plan, env: Any, trainer: Trainer, main_process: bool, announce:
                     resume_update=progress["update"] if plan.checkpoint else None,
                     resume_env_steps=progress["env_steps"],
                 )
-            trainer = warmup.traced(trainer, state, plan.ppo.seed)  # warm: no tracing
+            trainer = warmup.traced(trainer, state, plan.config.ppo.seed)  # warm: no tracing
             if state is None:  # compile run (and the evaluation) while init compiles
-                key = jax.random.key(plan.ppo.seed)
-                warm = warmup.start(trainer, key, evaluate_fn, lambda s: make_policy(s, plan.ppo))
+                key = jax.random.key(plan.config.ppo.seed)
+                warm = warmup.start(
+                    trainer, key, evaluate_fn, lambda s: make_policy(s, plan.config)
+                )
                 state = trainer.init(key)
                 if warm is not None:
                     warm.wait("run")
             if main_process:
                 print(
-                    f"{plan.env_name}: {trainer.num_updates} updates of {plan.ppo.num_envs} "
-                    f"envs x {plan.ppo.num_steps} steps, {num_parameters(state.params)} "
+                    f"{plan.env_name}: {trainer.num_updates} updates of {plan.config.ppo.num_envs} "
+                    f"envs x {plan.config.ppo.num_steps} steps, {num_parameters(state.params)} "
                     f"parameters, {jax.default_backend()} backend; the first call compiles",
                     flush=True,
                 )
@@ -211,7 +215,7 @@ def _announce(plan: Plan, trainer: Trainer, verbose: bool, resolved: dict[str, A
     """The run's header: task, preset, seeds, the batch, the device, the run folder; the
     whole resolved config with --verbose."""
     n = plan.run.seeds
-    first = plan.ppo.seed
+    first = plan.config.ppo.seed
     who = f"seed {first}" if n == 1 else f"seeds {first}..{first + n - 1}"
     steps = trainer.num_updates * trainer.steps_per_update
     device = jax.devices()[0]
@@ -219,7 +223,7 @@ def _announce(plan: Plan, trainer: Trainer, verbose: bool, resolved: dict[str, A
         print(json.dumps(resolved, indent=2), flush=True)
     print(
         f"{plan.env_name}, preset {plan.preset or '(of the checkpoint)'}, {who}: "
-        f"{plan.ppo.num_envs} envs x {plan.ppo.num_steps} steps per update, "
+        f"{plan.config.ppo.num_envs} envs x {plan.config.ppo.num_steps} steps per update, "
         f"{steps:,} env steps{' per seed' if n > 1 else ''}\n"
         f"device: {jax.device_count()} x {device.device_kind} ({device.platform}); "
         f"run folder: {plan.out} (config.json holds the whole config; --verbose prints it)",
@@ -235,7 +239,7 @@ def run_meta(plan: Plan, env: Any) -> dict[str, Any]:
         "env_config": env.config.to_dict(),
         "observation_size": env.observation_size,
         "action_size": env.action_size,
-        "ppo": plan.ppo.to_dict(),
+        **plan.config.to_dict(),  # "ppo", "policy", "curriculum"
         "run": plan.run.replace(out=str(plan.out)).to_dict(),
         "eval": plan.eval.to_dict(),
         **runs.provenance(),
@@ -334,7 +338,7 @@ def finish(
         last = {k: float(v) for k, v in rows[-1].items()} if rows else {}
     metric = (
         "reach_error_mm (the saved policy after probe_reach_steps steps from the reset)"
-        if plan.ppo.probe_reach_steps > 0
+        if plan.config.curriculum.probe_reach_steps > 0
         else "det_error_mm (one deterministic step from each training env's state)"
     )
     summary: dict[str, Any] = {
@@ -354,12 +358,23 @@ def finish(
         print(f"time to {name}: {rec['time_s']:.1f} s ({rec['env_steps']} env steps)")
     if plan.run.evaluate:
         if result is None:
-            policy = make_policy(state, plan.ppo)
+            policy = make_policy(state, plan.config)
             result = evaluate(env, policy, plan.eval, fn=evaluate_fn)
         orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
         print(format_table(plan.env_name, result, orientation, plan.eval), flush=True)
         report = {
-            **{k: meta[k] for k in ("env_name", "env_config", "ppo", "eval", "versions")},
+            **{
+                k: meta[k]
+                for k in (
+                    "env_name",
+                    "env_config",
+                    "ppo",
+                    "policy",
+                    "curriculum",
+                    "eval",
+                    "versions",
+                )
+            },
             "checkpoint": str(ckpt.list_checkpoints(plan.out)[-1]),
             "episodes": result.episodes(),
             "summary": result.summary(),
@@ -368,11 +383,10 @@ def finish(
         runs.write_json(plan.out / "eval.json", report)
         summary["eval"] = report["summary"]
     if plan.run.plots and (plan.out / "progress.csv").exists():
-        synchronised = not plan.ppo.stagger_episodes
-        reset_every = plan.ppo.num_envs * env.max_episode_steps if synchronised else 0
-        title = (
-            f"{plan.env_name}, preset {plan.preset or '(of the checkpoint)'}, seed {plan.ppo.seed}"
-        )
+        synchronised = not plan.config.curriculum.stagger_episodes
+        reset_every = plan.config.ppo.num_envs * env.max_episode_steps if synchronised else 0
+        preset = plan.preset or "(of the checkpoint)"
+        title = f"{plan.env_name}, preset {preset}, seed {plan.config.ppo.seed}"
         plots = logger.save_plots(plan.out / "progress.csv", plan.out / "plots", title, reset_every)
         for path in plots:
             print(f"wrote {path}")

@@ -1,9 +1,10 @@
 """The train CLI's command line (`python -m mara_mjx.train`): its flags, generated from
-the configs (PPOConfig, RunConfig, EvalConfig, the env's EnvConfig, RewardParams and
-RandomizeConfig; `--help` lists the main ones with the defaults of the preset the task
-trains, `--help_all` every one), and the `Plan` resolved from them: the task, its preset
-with the flags on top, the run folder, or on `--resume` the checkpoint's config with only
-run.* and eval.* changed."""
+the configs (TrainConfig's PPOConfig, PolicyConfig and CurriculumConfig, all three under
+`--ppo.` as before they were split; RunConfig, EvalConfig, the env's EnvConfig,
+RewardParams and RandomizeConfig; `--help` lists the main ones with the defaults of the
+preset the task trains, `--help_all` every one), and the `Plan` resolved from them: the
+task, its preset with the flags on top, the run folder, or on `--resume` the
+checkpoint's config with only run.* and eval.* changed."""
 
 from __future__ import annotations
 
@@ -31,11 +32,23 @@ from mara_mjx.envs.base import EnvConfig
 from mara_mjx.envs.randomize import RandomizeConfig
 from mara_mjx.envs.rewards import RewardParams
 from mara_mjx.ppo import checkpoint as ckpt
-from mara_mjx.ppo.config import PRESETS, EvalConfig, PPOConfig, RunConfig, default_preset
+from mara_mjx.ppo.config import (
+    PRESETS,
+    CurriculumConfig,
+    EvalConfig,
+    PolicyConfig,
+    PPOConfig,
+    RunConfig,
+    TrainConfig,
+    default_preset,
+)
 from mara_mjx.runtime import distributed, runs
 
 SECTIONS = (
-    Section("ppo", PPOConfig, defaults=PRESETS["default"]),
+    # TrainConfig's three sections share `--ppo.` (their flags before the split)
+    Section("ppo", PPOConfig, defaults=PRESETS["default"].ppo),
+    Section("ppo", PolicyConfig, defaults=PRESETS["default"].policy),
+    Section("ppo", CurriculumConfig, defaults=PRESETS["default"].curriculum),
     Section("run", RunConfig),
     Section("eval", EvalConfig),
     Section("env", EnvConfig, exclude=("reward", "randomization")),
@@ -50,7 +63,8 @@ class Plan:
 
     env_name: str
     env_overrides: dict[str, Any]
-    ppo: PPOConfig
+    config: TrainConfig
+    """The algorithm, the policy's parametrisation and the curriculum (`--ppo.*`)."""
     run: RunConfig
     eval: EvalConfig
     out: Path
@@ -96,7 +110,7 @@ def build_parser(argv: list[str] | None = None, full: bool = False) -> argparse.
     sections = [
         dataclasses.replace(
             s,
-            defaults=PRESETS[preset] if s.name == "ppo" else s.defaults,
+            defaults=section_of(PRESETS[preset], s.cls) if s.name == "ppo" else s.defaults,
             brief=None if full else BRIEF.get(s.name, ()),
         )
         for s in SECTIONS
@@ -156,6 +170,11 @@ def build_parser(argv: list[str] | None = None, full: bool = False) -> argparse.
     return parser
 
 
+def section_of(config: TrainConfig, cls: type) -> Any:
+    """The section of `config` that is a `cls` (PPOConfig, PolicyConfig, ...)."""
+    return next(v for v in vars(config).values() if isinstance(v, cls))
+
+
 def resolve(args: argparse.Namespace) -> Plan:
     """The plan from flags, presets and (on resume) the checkpoint; UserError if invalid."""
     given = {s.name: overrides(args, s.name) for s in SECTIONS}
@@ -163,14 +182,14 @@ def resolve(args: argparse.Namespace) -> Plan:
         if args.env is None:
             raise UserError(f"--env is required; choose one of {list(mara_mjx.registered())}")
         preset = PRESETS[args.preset or default_preset(args.env)]
-        ppo = _build("PPO config", lambda: preset.replace(**given["ppo"]))
+        config = _build("PPO config", lambda: preset.replace(**given["ppo"]))
         run = _build("run config", lambda: RunConfig().replace(**given["run"]))
         evaluation = _build("eval config", lambda: EvalConfig().replace(**given["eval"]))
         check_rate_limit(evaluation, env_overrides(args).get("driver", "train"))
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
         out = Path(run.out or f"runs/{args.env}-{stamp}")
         name = args.preset or default_preset(args.env)
-        return Plan(args.env, env_overrides(args), ppo, run, evaluation, out, preset=name)
+        return Plan(args.env, env_overrides(args), config, run, evaluation, out, preset=name)
 
     checkpoint, top, group_run = seeds.find_resume(args.resume, given["run"])
     _, meta = ckpt.load_checkpoint(checkpoint)
@@ -185,7 +204,7 @@ def resolve(args: argparse.Namespace) -> Plan:
                 f"cannot change {names} when resuming: it would change the results; "
                 "start a new run instead (only run.* and eval.* may change)"
             )
-    ppo = _build("PPO config of the checkpoint", lambda: PPOConfig.from_dict(meta["ppo"]))
+    config = _build("PPO config of the checkpoint", lambda: TrainConfig.from_meta(meta))
     run = {**meta["run"], **group_run, **given["run"]}
     run = _build("run config", lambda: RunConfig.from_dict(run))
     evaluation = _build(
@@ -197,7 +216,9 @@ def resolve(args: argparse.Namespace) -> Plan:
     env_flags = runs.env_overrides(meta["env_config"])
     check_rate_limit(evaluation, meta["env_config"].get("driver", "train"))
     preset = meta.get("preset", "")
-    return Plan(meta["env_name"], env_flags, ppo, run, evaluation, out, checkpoint, source, preset)
+    return Plan(
+        meta["env_name"], env_flags, config, run, evaluation, out, checkpoint, source, preset
+    )
 
 
 def _build(what: str, make: Callable[[], Any]) -> Any:

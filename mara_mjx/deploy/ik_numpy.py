@@ -1,4 +1,4 @@
-"""The deployed IK finish (PPOConfig.ik_finish) in numpy, for exported policies.
+"""The deployed IK finish (PolicyConfig.ik_finish) in numpy, for exported policies.
 
 `python -m mara_mjx.export` writes the nominal arm's chain (mara_mjx/envs/chain.py: base
 pose, body offsets, hinge axes and anchors, the TCP site) and mara_mjx/envs/task_space.py's

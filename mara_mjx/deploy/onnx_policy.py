@@ -117,7 +117,7 @@ def build_model(policy: Any) -> Any:
             x = node("Tanh", [x], f"tanh_{i}")
     if meta.get("relative_actions", False):
         step = float(meta.get("max_joint_step", 0.0))
-        if step > 0.0:  # m tanh(x / m) (PPOConfig.max_joint_step)
+        if step > 0.0:  # m tanh(x / m) (PolicyConfig.max_joint_step)
             m = const("max_joint_step", np.array(step, np.float32))
             squashed = node("Tanh", [node("Div", [x, m], "step_div")], "step_tanh")
             x = node("Mul", [squashed, m], "step")

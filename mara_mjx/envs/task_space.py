@@ -1,7 +1,7 @@
 """Task-space actions: a TCP displacement mapped to joint targets through the arm's Jacobian.
 
 The env's action stays what the spec says, absolute joint targets (rad). A policy may
-instead *parametrise* its joint targets by a TCP displacement (PPOConfig.task_space_actions):
+instead *parametrise* its joint targets by a TCP displacement (PolicyConfig.task_space_actions):
 its output u (6,) is read as a small TCP move, position then rotation, in the world frame,
 
     dx = (u[:3] * POSITION_SCALE, u[3:] * ROTATION_SCALE)      (m, rad)
@@ -25,7 +25,7 @@ keeps the step bounded (|dq| <= |dx| / (2 DAMPING)).
 The same step toward the target pose that an observation reports (`pose_step`: the TCP
 error e and the orientation error quat_err, read from the observation) is a Newton /
 resolved-rate step of inverse kinematics, which a policy may take as an input feature or
-as the base its output corrects (PPOConfig.ik_prior, residual-policy learning):
+as the base its output corrects (PolicyConfig.ik_prior, residual-policy learning):
 
     dq = pose_step(q, e, quat_err)          # (..., 6) rad, bounded
 
@@ -36,7 +36,7 @@ limit (benchmarks/NOTES.md section 24). With orient_first the tool is turned ont
 target before the TCP closes in, and the last approach is the IK step's alone (for an
 evaluation that stops at the first step within a position tolerance; training runs its
 loose form; benchmarks/NOTES.md sections 26-27). On a position task, `finish_step` is the
-last approach of a deployed policy's IK finish (PPOConfig.ik_finish): the IK step alone,
+last approach of a deployed policy's IK finish (PolicyConfig.ik_finish): the IK step alone,
 first to 1 cm short of the target, then onto it (benchmarks/NOTES.md section 28).
 """
 
@@ -78,7 +78,7 @@ rotation step and the approach converge together and the TCP enters the box with
 tool's second-order error of about a degree (benchmarks/NOTES.md sections 26-27)."""
 ORIENT_FIRST_NEAR = 0.06
 """pose_step_wrapping(orient_first=True, loose=False): m, within this distance of the target
-position the flag is on (PPOConfig.ik_gate_wrap then closes the residual's gate: the IK
+position the flag is on (PolicyConfig.ik_gate_wrap then closes the residual's gate: the IK
 step alone): a full position step (MAX_POSITION_STEP) plus ORIENT_FIRST_HOLD, so the
 last approach into the tolerance is the Newton step's, not the learnt correction's
 (whose tenth, left by ik_gate at 1 cm, turned the tool by about a degree on entry;
@@ -119,7 +119,7 @@ def stop_outside(
     step's way crossing into the zone, so the TCP stops just inside its edge (where the
     IK step takes over on the next step). Elsewhere dq unchanged. A deployed policy's
     guard: its learnt step does not jump into the zone where the IK step alone makes the
-    last approach (PPOConfig.ik_finish, ik_orient_first; benchmarks/NOTES.md section 28).
+    last approach (PolicyConfig.ik_finish, ik_orient_first; benchmarks/NOTES.md section 28).
     The TCP after a step is the nominal arm's at q + alpha dq clipped to the joint limits,
     as the env clips its targets: one forward kinematics per halving."""
     chain = nominal_chain()
@@ -233,7 +233,7 @@ def pose_step(
     that stops at the first step within a position tolerance finds the tool turned onto
     the target too (and pose_step_wrapping's flag, on within ORIENT_FIRST_NEAR, leaves
     that last approach to the IK step alone). With `loose` (training's rule,
-    PPOConfig.train_ik_orient_loose) there is neither: a stochastic policy keeps the tool
+    PolicyConfig.train_ik_orient_loose) there is neither: a stochastic policy keeps the tool
     about a degree off, and the hold would keep the sampled TCP off the target for good
     (benchmarks/NOTES.md section 27). With wrap_last as well, the flange's long way round
     is decided from the roll still to turn (the twist of the correction about the last
@@ -248,7 +248,7 @@ def pose_step(
 
 
 def finish_step(q: jax.Array, e: jax.Array) -> jax.Array:
-    """The IK finish of a position task (PPOConfig.ik_finish): q (..., 6) rad, e (..., 3)
+    """The IK finish of a position task (PolicyConfig.ik_finish): q (..., 6) rad, e (..., 3)
     = p_tcp - p_target (m) -> dq (..., 6) rad, the position-only pose_step toward a point
     FINISH_HOLD (1 cm) short of the target until the TCP is within FINISH_WITHIN x
     FINISH_HOLD of it, then toward the target. The last step into an evaluation's 5 mm box
@@ -271,7 +271,7 @@ def pose_step_wrapping(
     loose: bool = False,
 ) -> tuple[jax.Array, jax.Array]:
     """pose_step's dq (..., 6) and a flag (..., bool) for where the IK step should act
-    alone (PPOConfig.ik_gate_wrap closes the residual's gate there): where it takes the
+    alone (PolicyConfig.ik_gate_wrap closes the residual's gate there): where it takes the
     last joint the long way round (only with quat_err and wrap_last); with orient_first
     and flag_roll, also while the flange still has more than MAX_ROTATION_STEP of roll
     to turn (the second half of a long way round looks like a short roll: the flag stays

@@ -2,8 +2,9 @@
 
 Pure pieces:        gae, ppo_loss, ActorCritic, gaussian_log_prob, gaussian_entropy,
                     RunningStats, update_stats, normalize
-Training:           make_train(env, PPOConfig, updates_per_call) -> Trainer(init, run, ...)
-Config:             PPOConfig, RunConfig, EvalConfig, PRESETS ("default", "paper", "ros2learn")
+Training:           make_train(env, TrainConfig or PPOConfig, updates_per_call) -> Trainer
+Config:             TrainConfig(ppo=PPOConfig, policy=PolicyConfig, curriculum=CurriculumConfig),
+                    RunConfig, EvalConfig, PRESETS ("default", "paper", "ros2learn", ...)
 Policy artefact:    make_policy(checkpoint_or_params, config) -> Policy (fn(obs) -> action),
                     load_policy(checkpoint file or run folder)
 Checkpoints:        save_checkpoint, load_checkpoint, find_checkpoint
@@ -18,7 +19,15 @@ from mara_mjx.ppo.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from mara_mjx.ppo.config import PRESETS, EvalConfig, PPOConfig, RunConfig
+from mara_mjx.ppo.config import (
+    PRESETS,
+    CurriculumConfig,
+    EvalConfig,
+    PolicyConfig,
+    PPOConfig,
+    RunConfig,
+    TrainConfig,
+)
 from mara_mjx.ppo.evaluation import PAPER_RESULTS, EvalResult, evaluate, format_table
 from mara_mjx.ppo.losses import LossInfo, gae, ppo_loss
 from mara_mjx.ppo.networks import (
@@ -39,14 +48,17 @@ __all__ = [
     "PRESETS",
     "ActorCritic",
     "CheckpointError",
+    "CurriculumConfig",
     "EvalConfig",
     "EvalResult",
     "LossInfo",
     "PPOConfig",
     "Policy",
+    "PolicyConfig",
     "RunConfig",
     "RunnerState",
     "RunningStats",
+    "TrainConfig",
     "Trainer",
     "evaluate",
     "find_checkpoint",

@@ -3,7 +3,9 @@
 A checkpoint holds every leaf of the `RunnerState` (params, optimiser state, observation
 statistics, the state of every env, the PRNG key, the update count) under a readable
 name such as `params/params/actor/Dense_0/kernel`, plus a JSON `__meta__` entry with the
-resolved config (env name and env config, ppo, run, eval), the host progress (update,
+resolved config (env name and env config, ppo, policy, curriculum, run, eval; one
+written before the PPOConfig split, with every field flat under ppo, is converted on
+loading: `mara_mjx.ppo.config.upgrade_meta`), the host progress (update,
 env steps as Python ints, wall-clock time, time-to-accuracy records), the versions of
 python/jax/mujoco/flax/optax/numpy and the git commit when available. PRNG keys are
 stored as their raw uint32 key data.
@@ -136,7 +138,12 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dic
     for key in (*required, "observation_size", "action_size"):
         if key not in meta:
             raise CheckpointError(f"checkpoint {str(path)!r} metadata lacks {key!r}")
-    return arrays, meta
+    from mara_mjx.ppo.config import upgrade_meta
+
+    try:  # one written before the PPOConfig split: its flat "ppo" in three sections
+        return arrays, upgrade_meta(meta)
+    except ValueError as e:
+        raise CheckpointError(f"checkpoint {str(path)!r}: {e}") from e
 
 
 def list_checkpoints(run_dir: str | os.PathLike) -> list[Path]:

@@ -63,7 +63,7 @@ def check_finite(
 ) -> None:
     """Raise `Diverged` when the loss metrics of the call that took the run from update
     `done` to `done + n`, or `state`'s params / obs_stats, are not finite. A population
-    (PPOConfig.population: `state.fitness` set) stops only when all the members (of a
+    (CurriculumConfig.population: `state.fitness` set) stops only when all the members (of a
     seed) diverged: its exploit step replaces a diverged member by a copy of a good one
     (a member whose params are not finite ranks last), and its metrics are member 0's
     alone."""

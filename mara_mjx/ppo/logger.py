@@ -106,7 +106,7 @@ def rows_from_metrics(
 class Milestones:
     """Wall-clock time and env steps when the deterministic mean per-axis error first
     drops below each threshold: `reach_error_mm` (the probe from the reset of
-    PPOConfig.probe_reach_steps) where the rows have it, else `det_error_mm`."""
+    CurriculumConfig.probe_reach_steps) where the rows have it, else `det_error_mm`."""
 
     def __init__(self, records: dict[str, Any] | None = None):
         self.records: dict[str, Any] = dict(records or {})
@@ -115,7 +115,7 @@ class Milestones:
         """Record new crossings; returns messages for them."""
         messages = []
         for row in rows:
-            # PPOConfig.probe_reach_steps' probe from the reset where the run has one
+            # CurriculumConfig.probe_reach_steps' probe from the reset where the run has one
             err = row["reach_error_mm"] if "reach_error_mm" in row else row.get("det_error_mm")
             err = math.nan if err is None else err
             for mm in ACCURACY_THRESHOLDS_MM:

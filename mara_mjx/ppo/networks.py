@@ -22,8 +22,8 @@ m > 0 the joint displacement is squashed to m tanh(delta / m), so the mean moves
 joint less than m per control step (and the trainer clips its samples to the same box),
 as the real driver's servos move at most `velocity` x control_dt.
 
-    network = make_network(config, action_size)
-    mean, log_std, value = forward(network, params, obs_stats, obs, config.obs_clip)
+    network = make_network(config, action_size)   # a TrainConfig (mara_mjx.ppo.config)
+    mean, log_std, value = forward(network, params, obs_stats, obs, config.ppo.obs_clip)
 """
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ class ActorCritic(nn.Module):
         already computed (the trainer computes it once per sample), else None."""
         if self.hidden_obs:  # entries neither network sees (zero after normalisation)
             obs = obs.at[..., jnp.asarray(self.hidden_obs)].set(0.0)
-        if self.ik_prior:  # the IK step toward the observed target (PPOConfig.ik_prior)
+        if self.ik_prior:  # the IK step toward the observed target (PolicyConfig.ik_prior)
             if raw_obs is None:
                 raise ValueError("ik_prior: the network needs the raw observation")
             ik_step, wrapping = ik_inputs(self, raw_obs) if ik is None else ik
@@ -106,27 +106,27 @@ class ActorCritic(nn.Module):
             else:
                 delta = mean
             if self.ik_prior == "residual":
-                if self.ik_gate > 0.0:  # near the target the IK step alone (PPOConfig.ik_gate)
+                if self.ik_gate > 0.0:  # near the target the IK step alone (PolicyConfig.ik_gate)
                     gate = ik_gate(raw_obs, self.ik_gate)
                     if self.ik_gate_wrap:  # and while it turns the flange the long way (or
-                        # rolls it by more than a step: ik_gate_roll, PPOConfig.train_ik_gate_roll)
+                        # rolls it by more than a step: PolicyConfig.train_ik_gate_roll)
                         gate = jnp.where(wrapping, 0.0, gate)
                     delta = delta * gate[..., None]
                 delta = delta + ik_step
                 if self.ik_guard and self.ik_orient_first and self.ik_gate_wrap:
                     # the deployed rule: a learnt step stops at the edge of the zone where
-                    # the IK step alone makes the last approach (PPOConfig.ik_orient_first)
+                    # the IK step alone makes the last approach (PolicyConfig.ik_orient_first)
                     from mara_mjx.envs.task_space import ORIENT_FIRST_NEAR, stop_outside
 
                     delta = stop_outside(q, raw_obs[..., 6:9], delta, ORIENT_FIRST_NEAR)
-            if self.ik_finish > 0.0:  # the last approach is the IK step's (PPOConfig.ik_finish)
+            if self.ik_finish > 0.0:  # the last approach is the IK step's (PolicyConfig.ik_finish)
                 from mara_mjx.envs.task_space import finish_step, stop_outside
 
                 e = raw_obs[..., 6:9]
                 near = jnp.sum(jnp.square(e), -1, keepdims=True) < self.ik_finish**2
                 delta = stop_outside(q, e, delta, self.ik_finish)  # no jump into the zone
                 delta = jnp.where(near, finish_step(q, e), delta)
-            if self.max_joint_step > 0.0:  # |delta| < m per joint, smoothly (PPOConfig)
+            if self.max_joint_step > 0.0:  # |delta| < m per joint, smoothly (PolicyConfig)
                 delta = self.max_joint_step * jnp.tanh(delta / self.max_joint_step)
             mean = q + delta
         value = MLP(self.hidden_sizes, 1, 1.0, name="critic")(obs)[..., 0]
@@ -180,7 +180,7 @@ def ik_inputs(network: ActorCritic, raw_obs: jax.Array) -> tuple[jax.Array, jax.
 
 
 def ik_gate(raw_obs: jax.Array, scale: float) -> jax.Array:
-    """tanh(|e| / scale) of PPOConfig.ik_gate, e = obs[6:9] of a MARA observation -> (...)."""
+    """tanh(|e| / scale) of PolicyConfig.ik_gate, e = obs[6:9] of a MARA observation -> (...)."""
     return jnp.tanh(jnp.sqrt(jnp.sum(jnp.square(raw_obs[..., 6:9]), -1) + 1e-20) / scale)
 
 
@@ -195,31 +195,36 @@ def canonical_quat(obs: jax.Array, index: int) -> jax.Array:
 
 
 def make_network(config: Any, action_size: int, training: bool = False) -> ActorCritic:
-    """The ActorCritic a PPOConfig describes (the one constructor: training, policies and
-    checkpoints all build it here). `training`: the trainer's network, with the
-    training-only parts of the config (train_ik_gate_roll, train_ik_orient_loose) and
-    without the deployed-only ones (ik_finish, the guard of ik_orient_first's zone);
-    policies run the other way round."""
+    """The ActorCritic a TrainConfig describes (the one constructor: training, policies and
+    checkpoints all build it here): the MLPs' shape from its `ppo` (PPOConfig), the
+    parametrisation from its `policy` (PolicyConfig). `training`: the trainer's network,
+    with the training-only rules (train_ik_gate_roll, train_ik_orient_loose) and without
+    the deployed-only ones (ik_finish, the guard of ik_orient_first's zone); policies run
+    the other way round. A PPOConfig alone has the default parametrisation."""
+    from mara_mjx.ppo.config import as_train_config
+
+    config = as_train_config(config)
+    ppo, policy = config.ppo, config.policy
     return ActorCritic(
         action_size,
-        tuple(config.hidden_sizes),
-        config.init_log_std,
-        config.relative_actions,
-        config.log_std_floor,
-        tuple(config.hidden_obs),
-        config.quat_index if config.canonical_quat else -1,
-        config.task_space_actions,
-        config.max_joint_step,
-        config.ik_prior,
-        config.quat_index if config.ik_prior else -1,
-        config.ik_gate,
-        config.ik_wrap,
-        config.ik_gate_wrap,
-        config.ik_orient_first,
-        training and config.train_ik_gate_roll,
-        training and config.ik_orient_first and config.train_ik_orient_loose,
-        0.0 if training else config.ik_finish,
-        not training and config.ik_orient_first,  # its deployed guard (stop_outside)
+        tuple(ppo.hidden_sizes),
+        ppo.init_log_std,
+        policy.relative_actions,
+        ppo.log_std_floor,
+        tuple(policy.hidden_obs),
+        policy.quat_index if policy.canonical_quat else -1,
+        policy.task_space_actions,
+        policy.max_joint_step,
+        policy.ik_prior,
+        policy.quat_index if policy.ik_prior else -1,
+        policy.ik_gate,
+        policy.ik_wrap,
+        policy.ik_gate_wrap,
+        policy.ik_orient_first,
+        training and policy.train_ik_gate_roll,
+        training and policy.ik_orient_first and policy.train_ik_orient_loose,
+        0.0 if training else policy.ik_finish,
+        not training and policy.ik_orient_first,  # its deployed guard (stop_outside)
     )
 
 

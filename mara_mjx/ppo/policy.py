@@ -26,9 +26,9 @@ from mara_mjx.ppo.checkpoint import (
     find_checkpoint,
     load_checkpoint,
 )
-from mara_mjx.ppo.config import PPOConfig
+from mara_mjx.ppo.config import PPOConfig, TrainConfig, as_train_config
+from mara_mjx.ppo.members import member_axis
 from mara_mjx.ppo.networks import ActorCritic, RunningStats, forward, make_network
-from mara_mjx.ppo.train import member_axis
 
 
 @struct.dataclass
@@ -37,7 +37,7 @@ class Policy:
 
     params: Any
     obs_stats: RunningStats | None
-    config: PPOConfig = struct.field(pytree_node=False)
+    config: TrainConfig = struct.field(pytree_node=False)
     action_size: int = struct.field(pytree_node=False)
 
     @property
@@ -51,7 +51,7 @@ class Policy:
     def distribution(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Gaussian (mean, log_std), each (..., action_size), for stochastic use."""
         mean, log_std, _ = forward(
-            self.network, self.params, self.obs_stats, obs, self.config.obs_clip
+            self.network, self.params, self.obs_stats, obs, self.config.ppo.obs_clip
         )
         return mean, log_std
 
@@ -89,7 +89,7 @@ def _rate_limited_call(policy: Any, max_step: jax.Array, bounds: Any, obs: jax.A
 
 def make_policy(
     checkpoint_or_params: Any,
-    config: PPOConfig | None = None,
+    config: TrainConfig | PPOConfig | None = None,
     obs_stats: RunningStats | None = None,
 ) -> Policy:
     """The deterministic policy fn(obs) -> action from any of:
@@ -98,7 +98,7 @@ def make_policy(
       from the checkpoint;
     * a `RunnerState` (training state) with its `config`;
     * flax params of `ActorCritic` with their `config` (and `obs_stats` when
-      config.normalize_obs);
+      config.ppo.normalize_obs);
     * a `Policy` (returned as is).
     """
     if isinstance(checkpoint_or_params, Policy):
@@ -106,7 +106,8 @@ def make_policy(
     if isinstance(checkpoint_or_params, str | os.PathLike):
         return load_policy(checkpoint_or_params)
     if config is None:
-        raise ValueError("make_policy needs the PPOConfig the params were trained with")
+        raise ValueError("make_policy needs the TrainConfig the params were trained with")
+    config = as_train_config(config)
     params = checkpoint_or_params
     if hasattr(params, "params") and hasattr(params, "obs_stats"):  # RunnerState
         params, obs_stats = params.params, params.obs_stats
@@ -122,14 +123,14 @@ def make_policy(
             "make_policy: params are not those of mara_mjx.ppo.ActorCritic "
             "(no params['params']['log_std'])"
         ) from e
-    if config.normalize_obs and obs_stats is None:
+    if config.ppo.normalize_obs and obs_stats is None:
         raise ValueError(
             "make_policy: config.normalize_obs is true but no obs_stats were given; the policy "
             "would see unnormalised observations"
         )
     return Policy(
         params=params,
-        obs_stats=obs_stats if config.normalize_obs else None,
+        obs_stats=obs_stats if config.ppo.normalize_obs else None,
         config=config,
         action_size=action_size,
     )
@@ -148,20 +149,20 @@ def policy_from_checkpoint(arrays: dict[str, np.ndarray], meta: dict[str, Any]) 
     evaluation would print a normal-looking table). Every CLI that loads a policy
     (evaluate, play, export, a --seeds evaluation) comes through here."""
     try:
-        config = PPOConfig.from_dict(meta["ppo"])
+        config = TrainConfig.from_meta(meta)  # either layout (a pre-split flat "ppo" too)
     except (TypeError, ValueError) as e:
         raise CheckpointError(f"checkpoint holds an invalid PPO config: {e}") from e
     network = make_network(config, meta["action_size"])
     obs = jax.ShapeDtypeStruct((meta["observation_size"],), jnp.float32)
     template = jax.eval_shape(network.init, jax.random.key(0), obs, obs)
-    if config.population > 1:  # a population's policy is member 0's (ppo.train.population)
+    if config.curriculum.population > 1:  # a population's policy is member 0's (members)
         arrays = {
             k: (v[0] if k.startswith(("params/", "obs_stats/")) else v) for k, v in arrays.items()
         }
     check_finite_arrays(arrays)
     params = arrays_to_state(arrays, template, prefix="params/")
     stats = None
-    if config.normalize_obs:
+    if config.ppo.normalize_obs:
         stats = arrays_to_state(arrays, RunningStats.create(meta["observation_size"]), "obs_stats/")
     return Policy(params=params, obs_stats=stats, config=config, action_size=meta["action_size"])
 

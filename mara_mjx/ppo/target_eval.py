@@ -305,7 +305,7 @@ def run(
             "how": "envs.targets.evaluation_poses: numpy SeedSequence(eval seed, "
             "spawn_key=(1,)); training tables use spawn_key (0,)",
         },
-        "ppo": meta["ppo"],
+        **{k: meta[k] for k in ("ppo", "policy", "curriculum")},
         "trained": meta["progress"],
         **ckpt.provenance(),
         "training_versions": meta.get("versions"),

@@ -103,7 +103,8 @@ def key_material(trainer: Any, state: Any) -> str:
             int(getattr(jax.config, "jax_random_seed_offset", 0)),
         ],
         "source": source_hash(),
-        "ppo": {k: v for k, v in trainer.config.to_dict().items() if k != "seed"},
+        **trainer.config.to_dict(),  # "ppo", "policy", "curriculum"; the seed is not compiled in
+        "ppo": {k: v for k, v in trainer.config.ppo.to_dict().items() if k != "seed"},
         "env": env_fingerprint(env),
         "batched": [getattr(batched, "reset_strategy", None), getattr(batched, "num_envs", None)],
         "updates_per_call": trainer.updates_per_call,

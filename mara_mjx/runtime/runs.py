@@ -180,14 +180,17 @@ def write_json(path: str | os.PathLike, data: Any) -> Path:
     return files.write_atomic(path, json.dumps(data, indent=2) + "\n")
 
 
-IDENTITY = ("env_name", "env_config", "ppo")
+IDENTITY = ("env_name", "env_config", "ppo", "policy", "curriculum")
 """What makes two checkpoints the same run's (the run section may change on resume)."""
 
 
 def differences(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
     """The IDENTITY sections in which two configs (config.json, a checkpoint's meta)
     differ; of the dicts, only the fields both have count (a newer version may add
-    fields)."""
+    fields; a pre-split config.json is compared in the present layout)."""
+    from mara_mjx.ppo.config import upgrade_meta
+
+    a, b = upgrade_meta(a), upgrade_meta(b)
     differ = []
     for key in IDENTITY:
         x, y = a.get(key), b.get(key)
