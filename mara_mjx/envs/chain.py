@@ -85,7 +85,9 @@ def _mat_to_quat(m: jnp.ndarray) -> jnp.ndarray:
         ]
     )
     pick = jnp.argmax(jnp.array([tr, m[0, 0], m[1, 1], m[2, 2]]))
-    quat = cands[pick]
+    # a one-hot select, not cands[pick]: jax2onnx lowers that batched gather (under vmap)
+    # to a GatherND of the wrong rank; the sum adds exact zeros, so the result is the same
+    quat = jnp.sum(jnp.where((jnp.arange(4) == pick)[:, None], cands, 0.0), axis=0)
     return quat / jnp.linalg.norm(quat)
 
 

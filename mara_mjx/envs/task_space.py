@@ -46,6 +46,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from mara_mjx.envs.chain import Chain
 from mara_mjx.envs.geometry import quat_canonical
@@ -123,28 +124,30 @@ def stop_outside(
     The TCP after a step is the nominal arm's at q + alpha dq clipped to the joint limits,
     as the env clips its targets: one forward kinematics per halving."""
     chain = nominal_chain()
-    lo6, hi6 = (jnp.asarray(x, jnp.float32) for x in joint_ranges())
+    # numpy, not jnp: a jnp constant made while tracing is a traced value, which a loop
+    # body may not close over for jax2onnx
+    lo6, hi6 = (np.asarray(x, np.float32) for x in joint_ranges())
     step = dq  # the gradient flows through the step itself, not through alpha
     q, e, dq = (jax.lax.stop_gradient(x) for x in (q, e, dq))
+    tcp = jnp.vectorize(lambda q1: chain.tcp(q1)[0], signature="(6)->(3)")
+    # Batch-first, the loop outermost, its batched values in the carry: jax2onnx exports
+    # a fori_loop neither under vmap (no batching rule) nor closing over traced values.
+    target = tcp(q) - e
 
-    def one(q1: jax.Array, e1: jax.Array, dq1: jax.Array) -> jax.Array:
-        target = chain.tcp(q1)[0] - e1
+    def outside(alpha, q, dq, target):  # alpha (...,) -> (...,) bool
+        after = tcp(jnp.clip(q + alpha[..., None] * dq, lo6, hi6)) - target
+        return jnp.sum(jnp.square(after), -1) >= radius**2
 
-        def outside(alpha: jax.Array) -> jax.Array:
-            after = chain.tcp(jnp.clip(q1 + alpha * dq1, lo6, hi6))[0] - target
-            return jnp.sum(jnp.square(after)) >= radius**2
+    def halve(_, carry):
+        lo, hi, q, dq, target = carry
+        mid = 0.5 * (lo + hi)
+        out = outside(mid, q, dq, target)
+        return jnp.where(out, mid, lo), jnp.where(out, hi, mid), q, dq, target
 
-        def halve(_, bounds):
-            lo, hi = bounds
-            mid = 0.5 * (lo + hi)
-            out = outside(mid)
-            return jnp.where(out, mid, lo), jnp.where(out, hi, mid)
-
-        jumps = (jnp.sum(jnp.square(e1)) >= radius**2) & ~outside(jnp.ones(()))
-        _, hi = jax.lax.fori_loop(0, iters, halve, (jnp.zeros(()), jnp.ones(())))
-        return jnp.where(jumps, hi, 1.0)
-
-    alpha = jnp.vectorize(one, signature="(6),(3),(6)->()")(q, e, dq)
+    ones = jnp.ones(q.shape[:-1], q.dtype)
+    jumps = (jnp.sum(jnp.square(e), -1) >= radius**2) & ~outside(ones, q, dq, target)
+    hi = jax.lax.fori_loop(0, iters, halve, (jnp.zeros_like(ones), ones, q, dq, target))[1]
+    alpha = jnp.where(jumps, hi, 1.0)
     return alpha[..., None] * step
 
 
@@ -311,7 +314,7 @@ def pose_step_wrapping(
                 # conj(quat_err) about the last joint's axis (swing-twist), at any distance
                 axis = jac[3:, 5] / jnp.maximum(jnp.linalg.norm(jac[3:, 5]), 1e-12)
                 quat = quat_canonical(r[0])
-                goal = q1[5] + 2.0 * jnp.arctan2(-jnp.dot(quat[1:], axis), quat[0])
+                goal = q1[5] + 2.0 * jnp.arctan2(-jnp.sum(quat[1:] * axis), quat[0])
                 near = jnp.ones((), bool)  # the roll still to turn, wherever the TCP is
             else:
                 full = dls_step(jac, jnp.concatenate([-e1, -rotation_vector(r[0])]))
@@ -327,7 +330,7 @@ def pose_step_wrapping(
             if orient_first:  # hold the position while the flange rolls the long way:
                 # joints 1-5 keep the TCP where it is and turn the tool axis (the rotation
                 # less its part about the flange's axis), the last joint rolls
-                turn = dx[3:] - jnp.dot(dx[3:], axis) * axis
+                turn = dx[3:] - jnp.sum(dx[3:] * axis) * axis
                 rhs = jnp.concatenate([-jac[:3, 5] * long_way, turn])
                 held = jnp.append(dls_step(jac[:, :5], rhs), long_way)
                 dq = jnp.where(use, held, dq)
