@@ -3,8 +3,8 @@ an ONNX model (the suffix chooses).
 
     python -m mara_mjx.export runs/MARA-.../ OUT.npz        # newest checkpoint of a run
     python -m mara_mjx.export runs/MARA-.../checkpoints/ckpt_00000100.npz OUT.npz
-    python -m mara_mjx.export runs/MARA-.../ OUT.onnx       # ONNX (pip install ".[onnx]")
-    python -m mara_mjx.export runs/MARA-.../ OUT.onnx --drop_ik_finish  # MARA's preset
+    python -m mara_mjx.export runs/MARA-.../ OUT.onnx       # ONNX (pip install ".[export]")
+    python -m mara_mjx.export runs/MARA-.../ OUT.onnx --batch 1   # one arm per call, faster
 
     from mara_mjx.cli.export import load_exported
     policy = load_exported("OUT.npz")
@@ -20,9 +20,13 @@ positions) when the run used `relative_actions`; a policy with an IK finish
 (PolicyConfig.ik_finish; format mara_mjx.export/2, meta "ik_finish") first replaces that
 displacement near the target by the IK step (mara_mjx/deploy/ik_numpy.py). The action is an
 absolute joint target (rad) for motor1..motor6; the env clips it to the joint limits
-(`policy(obs, clip=True)` does the same here). The .onnx file computes the same graph
-without a finish (`mara_mjx/deploy/onnx_policy.py`; a policy with one is refused): input "obs"
-(N, obs_size) float32, outputs "action" and "action_clipped" (N, 6) rad.
+(`policy(obs, clip=True)` does the same here). The .onnx file: input "obs" (N, obs_size)
+float32, outputs "action" and "action_clipped" (N, 6) rad; a joint-space policy's graph is
+written node by node (`mara_mjx/deploy/onnx_policy.py`, needs onnx), a policy with IK rules
+(ik_prior, task_space_actions, ik_finish) is traced from the JAX policy by jax2onnx, all
+its rules in the graph and checked against JAX before it is written
+(`mara_mjx/deploy/onnx_graph.py`, needs the [export] extra; meta "rules_in_graph"). .npz
+refuses ik_prior and task_space_actions policies (numpy has no Jacobian).
 
 File layout (`np.load(path)`; no pickles):
     layer_<i>/kernel   (in, out) float32, i = 0 .. len(hidden_sizes)   y = x @ kernel + bias
@@ -41,7 +45,8 @@ File layout (`np.load(path)`; no pickles):
                        quat_index (-1, or where the sign-canonicalised quaternion starts),
                        observation_layout [{name, start, stop, units, description}],
                        action {joint_names, lower, upper, units, description},
-                       source {checkpoint, update, env_steps}
+                       source {checkpoint, update, env_steps},
+                       control_dt (s, the control period), recipe {preset, config}
 
 The output is written atomically and never replaces a checkpoint (any file of a
 `checkpoints/` folder, or a mara_mjx checkpoint anywhere) or a run folder's own file; an
@@ -52,6 +57,7 @@ existing file only if it is an exported policy (exporting again replaces it), or
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import functools
 import json
@@ -84,13 +90,15 @@ def export_policy(
     out_path: str | os.PathLike,
     drop_ik_finish: bool = False,
     overwrite: bool = False,
+    batch: int | None = None,
 ) -> Path:
     """Write the deterministic policy of `checkpoint` (a checkpoint file, or a run folder:
     its newest checkpoint) to `out_path`, atomically: .npz (numpy) or .onnx (an ONNX
-    model, needs the `onnx` package). A policy with an IK finish (PolicyConfig.ik_finish, the
-    position tasks' presets) keeps it in .npz (the arm's chain in the meta's ik_finish,
-    run by mara_mjx/deploy/ik_numpy.py); .onnx refuses it unless `drop_ik_finish`, which writes
-    the learnt policy alone (the meta's ik_finish_dropped says so) in either format. An
+    model, needs the `onnx` package; with IK rules, jax2onnx: module docstring; `batch`: a
+    static batch size for a traced graph, None for any). A policy with an IK finish
+    (PolicyConfig.ik_finish) keeps it (.npz: the arm's chain in the meta's ik_finish, run
+    by mara_mjx/deploy/ik_numpy.py; .onnx: in the graph) unless `drop_ik_finish`, which
+    writes the learnt policy alone (the meta's ik_finish_dropped says so). An
     existing `out_path` is replaced only if it is an exported policy, or with
     `overwrite`; never a checkpoint or a run folder's file (module docstring). Raises
     ExportError (or mara_mjx.ppo.CheckpointError, also a ValueError) with what is
@@ -122,31 +130,22 @@ def export_policy(
     arrays, meta = ckpt.load_checkpoint(source)
     policy = policy_io.policy_from_checkpoint(arrays, meta)
     config, ppo = policy.config.policy, policy.config.ppo
-    # options whose actions need the arm's Jacobian, which the numpy/ONNX MLP does not have
-    for option, value in (
-        ("ik_prior", getattr(config, "ik_prior", "")),
-        ("task_space_actions", getattr(config, "task_space_actions", False)),
-    ):
-        if value:
-            raise ExportError(
-                f"{str(source)!r} was trained with {option}={value!r}, which needs the arm's "
-                "Jacobian (mara_mjx.envs.task_space); .npz/.onnx export supports joint-space "
-                "policies only. Use mara_mjx.ppo.load_policy(checkpoint) in JAX instead, or "
-                "train with --preset default (joint-space; the Orient tasks' default preset, "
-                "orient_first, uses ik_prior)"
-            )
-
-    finish = float(getattr(config, "ik_finish", 0.0))
-    if finish > 0.0 and out_path.suffix == ".onnx" and not drop_ik_finish:
+    # options whose actions need the arm's Jacobian, which the numpy MLP does not have
+    options = {"ik_prior": config.ik_prior, "task_space_actions": config.task_space_actions}
+    jacobian = [(k, v) for k, v in options.items() if v]
+    if jacobian and out_path.suffix == ".npz":
+        option, value = jacobian[0]
         raise ExportError(
-            f"{str(source)!r} ends its reach with an IK finish (ik_finish={finish} m), which "
-            "needs the arm's forward kinematics and Jacobian (mara_mjx.envs.task_space."
-            "finish_step); the .onnx graph carries the learnt joint-space policy only. "
-            "Export .npz (its numpy policy runs the finish), pass --drop_ik_finish to export "
-            "the learnt policy alone (its last step into a 5 mm box then lands a few mm off: "
-            "README, Training), or use mara_mjx.ppo.load_policy(checkpoint) in JAX"
+            f"{str(source)!r} was trained with {option}={value!r}, which needs the arm's "
+            "Jacobian (mara_mjx.envs.task_space); .npz export supports joint-space policies "
+            "only. Export .onnx (its graph runs every rule; pip install 'mara_mjx[export]'), "
+            "or use mara_mjx.ppo.load_policy(checkpoint) in JAX"
         )
+    finish = float(config.ik_finish)
     keep_finish = finish > 0.0 and not drop_ik_finish
+    if finish > 0.0 and not keep_finish:  # the learnt policy alone, in either format
+        policy = policy.replace(config=policy.config.replace(ik_finish=0.0))
+    in_graph = out_path.suffix == ".onnx" and bool(jacobian or keep_finish)
 
     env_name, env_config = meta["env_name"], meta["env_config"]
     try:
@@ -174,7 +173,7 @@ def export_policy(
         out["obs_var"] = np.asarray(policy.obs_stats.var, np.float32)
     progress = meta.get("progress", {})
     export_meta = {
-        "format": FORMAT_FINISH if keep_finish else FORMAT,
+        "format": FORMAT_FINISH if keep_finish and not in_graph else FORMAT,
         "env_name": env_name,
         "env_config": env_config,
         "observation_size": int(meta["observation_size"]),
@@ -202,7 +201,21 @@ def export_policy(
             "update": progress.get("update"),
             "env_steps": progress.get("env_steps"),
         },
+        "control_dt": float(env.config.control_dt),
+        "recipe": {"preset": meta.get("preset", ""), "config": policy.config.to_dict()},
     }
+    if in_graph:  # every rule is in the traced graph (mara_mjx/deploy/onnx_graph.py)
+        from mara_mjx.deploy import onnx_graph
+
+        export_meta["rules_in_graph"] = True
+        try:
+            model = onnx_graph.build_model(
+                policy, env.joint_lower, env.joint_upper, export_meta, batch
+            )
+        except onnx_graph.OnnxGraphError as e:
+            raise ExportError(f"{str(source)!r}: {e}") from e
+        _write_atomic(out_path, lambda f: onnx_graph.save(model, f))
+        return out_path
     if keep_finish:  # the numpy policy runs it (mara_mjx/deploy/ik_numpy.py)
         from mara_mjx.deploy.ik_numpy import finish_meta
 
@@ -376,8 +389,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--drop_ik_finish",
         action="store_true",
         help="export a policy with an IK finish (ik_finish, the position tasks' presets) "
-        "without it: the learnt joint-space policy alone (.onnx needs it; .npz keeps the "
-        "finish otherwise)",
+        "without it: the learnt policy alone (both formats keep the finish otherwise)",
+    )
+    parser.add_argument(
+        "--batch",
+        type=int,
+        default=None,
+        help=".onnx of a policy with IK rules: a static batch size (1: one arm per call, "
+        "about half the latency); default any batch",
     )
     add_deprecated_alias(parser, "--drop-ik-finish", "--drop_ik_finish", PROG)
     parser.add_argument(
@@ -395,7 +414,14 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        out = export_policy(args.checkpoint, args.out, args.drop_ik_finish, args.overwrite)
+        if args.out.endswith(".onnx"):  # a graph is traced on the CPU (onnx_graph)
+            import jax
+
+            with contextlib.suppress(Exception):  # unless a backend has started already
+                jax.config.update("jax_platforms", "cpu")
+        out = export_policy(
+            args.checkpoint, args.out, args.drop_ik_finish, args.overwrite, args.batch
+        )
         if out.suffix == ".onnx":
             print(f"wrote {out}: ONNX (opset 17), input obs (N, obs_size) float32, outputs "
                   "action and action_clipped (N, 6) rad")  # fmt: skip

@@ -1,0 +1,256 @@
+"""The ONNX graph of a deployed policy with IK rules, traced from the JAX policy itself
+(jax2onnx; the optional `[export]` extra, export time only: a robot needs onnxruntime alone).
+
+    pip install 'mara_mjx[export]'
+    python -m mara_mjx.export runs/MARACollisionOrient-.../ policy.onnx
+
+    from mara_mjx.deploy import onnx_graph
+    model = onnx_graph.build_model(policy, lower, upper, meta)   # checked, or OnnxGraphError
+    onnx_graph.save(model, "policy.onnx")
+
+    import onnxruntime as ort
+    session = ort.InferenceSession("policy.onnx")
+    targets, = session.run(["action_clipped"], {"obs": obs[None].astype(np.float32)})
+
+The graph is a trace of `deployed_step`: `Policy.__call__` (mara_mjx/ppo/policy.py, the
+function evaluation, play and the adapters run: the quaternion sign, the normaliser, the
+actor MLP, the IK step of mara_mjx/envs/task_space.py with its gates, the long way round,
+orient-first's rules, the guard and the finish, each as the checkpoint's PolicyConfig
+says) and the env's clip to the joint limits. One source of truth: no rule is restated
+here. The hand-written graph of mara_mjx/deploy/onnx_policy.py stays for the joint-space
+policies (an MLP of ~20 nodes, exact, and it needs only the `onnx` package).
+
+    input  obs             (N, obs_size) float32, the raw observation (env.observation_layout)
+    output action          (N, 6) rad, the policy's joint targets
+    output action_clipped  (N, 6) rad, clipped to the joint limits, as the env does
+
+`batch`: None, any N (a symbolic dimension); an int, that N only (batch 1: about half the
+nodes and half the latency of a robot's step). The metadata (`meta`: the export's layout,
+units, joint names and limits, control period, recipe) is stored as metadata_props
+["mara_mjx"] (JSON), as onnx_policy's is.
+
+The trace runs on the CPU: `task_space.dls_step` then takes the written-out Cholesky
+(envs/linalg.py), which lowers to ONNX, where the GPU's LU does not (a GPU-trained policy
+solves the same symmetric positive-definite system; the two differ at float32's floor).
+
+Before a model is returned it is checked (`self_check`): onnx.checker's full check, then
+onnxruntime against the jitted JAX step on `check_observations` (arm poses with
+sigma_min(J) >= 0.05, targets from a millimetre to half a radian of joint motion away):
+max |diff| <= `tolerance` (1e-4 rad), else OnnxGraphError and nothing is written. A
+converter bug must not reach a robot silently (jax2onnx 0.17.1 once lowered a batched
+gather to a wrong GatherND). Near a singular posture (sigma_min(J) at the 0.02 damping)
+any float32 evaluation of the IK step is only good to ~3e-4, JAX's own jit against eager
+included (benchmarks/archive/jax2onnx/FINDINGS.md).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import numpy as np
+
+OPSET = 17
+TOLERANCE = 1e-4
+"""rad: onnxruntime against the JAX step on the check observations."""
+MIN_SINGULAR = 0.05
+"""The check observations' arm poses: sigma_min of the TCP Jacobian at least this."""
+INSTALL = "pip install 'mara_mjx[export]' (or pip install jax2onnx==0.17.1)"
+
+
+class OnnxGraphError(ValueError):
+    """The graph cannot be built, or does not compute what the JAX policy computes."""
+
+
+def deployed_step(policy: Any, lower: Any, upper: Any) -> Callable[[Any], tuple[Any, Any]]:
+    """obs (..., obs_size) -> (policy(obs), clip(policy(obs), lower, upper)), (..., 6) rad:
+    the deterministic step a deployed policy takes, as evaluation takes it (the env clips)."""
+    import jax.numpy as jnp
+
+    lower, upper = np.asarray(lower, np.float32), np.asarray(upper, np.float32)
+
+    def step(obs: Any) -> tuple[Any, Any]:
+        action = policy(obs)
+        return action, jnp.clip(action, lower, upper)
+
+    return step
+
+
+def build_model(
+    policy: Any,
+    lower: Any,
+    upper: Any,
+    meta: dict[str, Any],
+    batch: int | None = None,
+    tolerance: float = TOLERANCE,
+) -> Any:
+    """The checked onnx.ModelProto of `deployed_step(policy, lower, upper)` (module
+    docstring). OnnxGraphError without jax2onnx, off the CPU backend, or when the check
+    fails."""
+    import jax
+
+    try:
+        from jax2onnx import to_onnx
+    except ImportError as e:
+        raise OnnxGraphError(
+            f"exporting a policy with IK rules to .onnx needs jax2onnx: {INSTALL}"
+        ) from e
+    if jax.default_backend() != "cpu":
+        raise OnnxGraphError(
+            "the ONNX graph is traced on the CPU (the IK step's written-out solve); run the "
+            f"export with JAX_PLATFORMS=cpu (the default backend is {jax.default_backend()!r})"
+        )
+    from onnx import helper
+
+    size = int(meta["observation_size"])
+    step = deployed_step(policy, lower, upper)
+    with _fast_output_binding():
+        model = to_onnx(
+            step,
+            [(batch or "N", size)],
+            model_name=f"mara_mjx_{meta['env_name']}_policy",
+            opset=OPSET,
+            input_names=["obs"],
+            output_names=["action", "action_clipped"],
+        )
+    model.producer_name = "mara_mjx (jax2onnx)"
+    model.doc_string = (
+        f"Deterministic policy for {meta['env_name']}: obs (N, {size}) -> action, "
+        "action_clipped (N, 6) rad (absolute joint targets motor1..motor6), with its IK rules."
+    )
+    obs = check_observations(meta, 128 if batch is None else batch * max(1, 128 // batch))
+    want = [np.asarray(x) for x in jax.jit(step)(obs)]
+    diff = self_check(model, obs, want, batch, tolerance)
+    meta = {**meta, "self_check": {"observations": len(obs), "max_abs_diff": diff}}
+    helper.set_model_props(model, {"mara_mjx": json.dumps(meta)})
+    return model
+
+
+def save(model: Any, file: Any) -> None:
+    """Write `model` to `file` (a path or a binary file object)."""
+    import onnx
+
+    onnx.save(model, file)
+
+
+def self_check(
+    model: Any,
+    obs: np.ndarray,
+    want: list[np.ndarray],
+    batch: int | None,
+    tolerance: float = TOLERANCE,
+) -> float:
+    """onnx.checker's full check, then max |onnxruntime - want| over both outputs on `obs`
+    (M, obs_size), `want` the JAX step's (action, action_clipped), the graph run in chunks
+    of `batch` (None: all at once). OnnxGraphError when the
+    checker refuses the model, onnxruntime cannot run it, or the difference exceeds
+    `tolerance`; else the difference (rad)."""
+    import onnx
+    import onnxruntime as ort
+
+    try:
+        onnx.checker.check_model(model, full_check=True)
+        options = ort.SessionOptions()
+        options.log_severity_level = 3
+        session = ort.InferenceSession(
+            model.SerializeToString(), options, providers=["CPUExecutionProvider"]
+        )
+        chunk = batch or len(obs)
+        got = [
+            np.concatenate(x)
+            for x in zip(
+                *(
+                    session.run(None, {"obs": obs[i : i + chunk]})
+                    for i in range(0, len(obs), chunk)
+                ),
+                strict=True,
+            )
+        ]
+    except Exception as e:  # the checker's and onnxruntime's own error types
+        raise OnnxGraphError(f"the traced graph is not a valid ONNX model: {e}") from e
+    diff = max(float(np.abs(g - w).max()) for g, w in zip(got, want, strict=True))
+    if not diff <= tolerance:
+        raise OnnxGraphError(
+            f"the traced graph differs from the JAX policy by {diff:.2e} rad on "
+            f"{len(obs)} check observations (tolerance {tolerance:.0e}): not written"
+        )
+    return diff
+
+
+def check_observations(meta: dict[str, Any], n: int = 128, seed: int = 0) -> np.ndarray:
+    """(n, obs_size) float32 observations as the env builds them (meta's observation_layout:
+    q, e, quat_err, v) from the nominal arm: q inside the joint box where sigma_min(J) >=
+    MIN_SINGULAR, the target the TCP pose of q plus a joint move of 1 mm-scale to 0.5 rad,
+    v = J_pos(q) qdot for a small qdot."""
+    import jax
+    import jax.numpy as jnp
+
+    from mara_mjx.envs.geometry import quat_canonical, quat_conj, quat_mul
+    from mara_mjx.envs.task_space import nominal_chain
+
+    chain = nominal_chain()
+    lower = np.asarray(meta["action"]["lower"], np.float64)
+    upper = np.asarray(meta["action"]["upper"], np.float64)
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(0.8 * lower, 0.8 * upper, (8 * n, 6)).astype(np.float32)
+    jac = np.asarray(jax.jit(jax.vmap(chain.jacobian))(q), np.float64)
+    q = q[np.linalg.svd(jac, compute_uv=False)[:, -1] >= MIN_SINGULAR][:n]
+    if len(q) < n:
+        raise OnnxGraphError("too few well-conditioned arm poses for the self-check")
+    scale = rng.choice([0.003, 0.03, 0.1, 0.5], (n, 1)) * rng.uniform(0.5, 1.5, (n, 1))
+    target_q = np.clip(q + scale * rng.normal(size=(n, 6)), lower, upper).astype(np.float32)
+    qdot = rng.normal(0.0, 0.1, (n, 6)).astype(np.float32)
+
+    @jax.jit
+    def parts(q, target_q, qdot):
+        pos, quat = jax.vmap(chain.tcp)(q)
+        target_pos, target_quat = jax.vmap(chain.tcp)(target_q)
+        quat_err = quat_mul(quat_canonical(quat), quat_conj(target_quat))
+        v = jnp.einsum("nij,nj->ni", jax.vmap(chain.jacobian)(q)[:, :3], qdot)
+        return {"q": q, "e": pos - target_pos, "quat_err": quat_err, "v": v}
+
+    values = parts(q, target_q, qdot)
+    obs = np.zeros((n, int(meta["observation_size"])), np.float32)
+    for part in meta["observation_layout"]:
+        if part["name"] not in values:
+            raise OnnxGraphError(f"no check observations for the part {part['name']!r}")
+        obs[:, part["start"] : part["stop"]] = np.asarray(values[part["name"]])
+    return obs
+
+
+@contextlib.contextmanager
+def _fast_output_binding() -> Iterator[None]:
+    """jax2onnx 0.17.1's `output_binding._value_is_graph_connected` scans the whole graph
+    for every equation (conversion O(nodes^2): ~100 s for an orient-first policy on a
+    2-core CPU); this asks the value's producer instead (seconds). The self-check catches
+    any error. Upstream material; a no-op where jax2onnx lacks the function."""
+    try:
+        from jax2onnx.converter import output_binding as ob
+    except ImportError:
+        yield
+        return
+    original = getattr(ob, "_value_is_graph_connected", None)
+    if original is None or not hasattr(ob, "_value_matches_reference"):
+        yield
+        return
+
+    def connected(ctx: Any, value: Any) -> bool:
+        graph = getattr(ctx.builder, "graph", None)
+        if graph is None:
+            return original(ctx, value)
+        producer = value.producer()
+        if producer is not None and producer.graph is graph:
+            return True
+        if value.name and value.name in graph.initializers:
+            return True
+        return any(ob._value_matches_reference(x, value) for x in ctx.builder.inputs) or (
+            producer is None and original(ctx, value)
+        )
+
+    ob._value_is_graph_connected = connected
+    try:
+        yield
+    finally:
+        ob._value_is_graph_connected = original
