@@ -380,7 +380,7 @@ PRESETS["staggered_ik_finish"] = PRESETS["staggered"].replace(ik_finish=0.06)
 # IK step's Newton convergence finishes the reach. Measured, 10 seeds of
 # MARACollisionOrientRandomTarget, 1,000 held-out poses each: worst seed 0.43 / 0.31 /
 # 1.21 deg and 0.91 mm mean per axis (this preset without them: 12.6 / 14.4 / 13.4 deg).
-# Its policies need the arm's Jacobian, so they run in JAX (no .npz/.onnx export).
+# Its policies need the arm's Jacobian: no .npz export; .onnx traces them (deploy/onnx_graph.py).
 PRESETS["random_target_orient"] = PRESETS["random_target"].replace(
     total_timesteps=120_000_000,
     train_limit_penalty=1.0,
@@ -400,7 +400,7 @@ PRESETS["random_target_orient"] = PRESETS["random_target"].replace(
 # Measured, 10 seeds per task, the paper's episodes and another set: every seed 10/10
 # at the paper's 5-mm stop, orientation worst 1.14 deg (0.02 on the paper's episodes),
 # position worst 0.74 mm, every hold exact (benchmarks/results/paper_table/README.md;
-# the policies need the arm's Jacobian: no .npz/.onnx export). On a position task
+# the policies need the arm's Jacobian: .onnx export only). On a position task
 # for_env clears the orientation parts: what is left (the IK residual and stagger) was
 # measured worse than the default on MARACollision.
 # It probes the saved policy from the reset for 100 steps after every jitted call
