@@ -73,7 +73,7 @@ def test_metrics_keys_are_kept_from_reset_on():
 QUIET = """
 from mara_mjx.bench.brax_peer import brax_kwargs
 from mara_mjx.ppo import PRESETS
-brax_kwargs(PRESETS["default"], 16)  # imports brax's PPO networks
+brax_kwargs(PRESETS["default"].ppo, 16)  # imports brax's PPO networks
 import mara_mjx.adapters.brax_env
 """
 

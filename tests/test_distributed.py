@@ -80,8 +80,8 @@ assert jax.device_count() == 2, jax.devices()
 plan = train.resolve(train.build_parser().parse_args(TOY + ["--out", "unused"]))
 out = {}
 for devices in (1, 2):
-    trainer = make_train(mara_mjx.make("PointReach"), plan.ppo, 1, devices)
-    state = trainer.init(jax.random.key(plan.ppo.seed))
+    trainer = make_train(mara_mjx.make("PointReach"), plan.config, 1, devices)
+    state = trainer.init(jax.random.key(plan.config.ppo.seed))
     for _ in range(trainer.num_updates):
         state, _ = trainer.run(state, 1)
     arrays = ckpt.state_to_arrays(state)

@@ -6,6 +6,7 @@ the JAX policy drives. Exports come from untrained checkpoints (test_export_plot
 
 from __future__ import annotations
 
+import functools
 import json
 import shutil
 import subprocess
@@ -48,6 +49,13 @@ def exports(tmp_path_factory) -> dict:
     }
 
 
+@functools.cache
+def _vstep(name: str):
+    """This file's own vmapped step (the shared `jitted(name).vstep` may already be traced
+    for another batch size by another test file in the same worker)."""
+    return jax.jit(jax.vmap(jitted(name).env.step))
+
+
 def _env_obs(name: str, q0: np.ndarray, q1: np.ndarray, pos: np.ndarray, quat: np.ndarray):
     """The env's observations (N, obs_size) after stepping each arm from joints q0 to q1
     (train driver: q1 reached, qvel = (q1 - q0) / control_dt), target (pos, quat)."""
@@ -59,7 +67,7 @@ def _env_obs(name: str, q0: np.ndarray, q1: np.ndarray, pos: np.ndarray, quat: n
         target_pos=jnp.asarray(pos, jnp.float32), target_quat=jnp.asarray(quat, jnp.float32)
     )
     state = state.replace(q=jnp.asarray(q0, jnp.float32), params=params)
-    out = env.vstep(state, jnp.asarray(q1, jnp.float32))
+    out = _vstep(name)(state, jnp.asarray(q1, jnp.float32))
     obs = np.asarray(out.obs)
     return obs, obs[:, :6]  # q1 in float32 (a colliding arm's state.q is the reset pose)
 

@@ -139,7 +139,8 @@ def export_policy(
             f"{str(source)!r} was trained with {option}={value!r}, which needs the arm's "
             "Jacobian (mara_mjx.envs.task_space); .npz export supports joint-space policies "
             "only. Export .onnx (its graph runs every rule; pip install 'mara_mjx[export]'), "
-            "or use mara_mjx.ppo.load_policy(checkpoint) in JAX"
+            "train with --preset default for a joint-space policy, or use "
+            "mara_mjx.ppo.load_policy(checkpoint) in JAX"
         )
     finish = float(config.ik_finish)
     keep_finish = finish > 0.0 and not drop_ik_finish
