@@ -415,6 +415,7 @@ def _load_onnx(path: Path, threads: int) -> tuple[Any, dict[str, Any]]:
         ) from e
     options = ort.SessionOptions()
     options.intra_op_num_threads = options.inter_op_num_threads = threads
+    options.log_severity_level = 3  # errors only: a traced graph's load lists pruned constants
     try:
         session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
         meta = json.loads(session.get_modelmeta().custom_metadata_map["mara_mjx"])
