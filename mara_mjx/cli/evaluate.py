@@ -25,6 +25,15 @@ Random-target tasks (MARARandomTarget, ...): 1,000 held-out target poses instead
 episode run to the horizon, with per-axis mean, median, 95th percentile and worst error,
 JSON, markdown and a figure (`mara_mjx.ppo.target_eval`).
 
+An exported policy file (`python -m mara_mjx.export`, .onnx or .npz) in place of the
+checkpoint runs that file in the same closed loop, the same episodes and the same report
+(`mara_mjx.deploy.in_the_loop`: onnxruntime or the runner's numpy, one call per env step
+batched over the episodes), in the env of its metadata (`--env NAME` for another of the
+same observation layout); the report names the file and its sha256 instead of a
+checkpoint, and goes by default beside the file (eval-<file stem>-<driver>.json):
+
+    python -m mara_mjx.evaluate policy.onnx --driver real --episodes 100
+
 Where the report goes is checked before anything runs: --json must name a file, not a
 folder, a checkpoint or a file of a run folder (config.json, progress.csv, eval.json, ...);
 an existing file is replaced only if it is an earlier report of this command (re-running
@@ -53,6 +62,7 @@ from mara_mjx.cli.common import (
     run_cli,
     uses_real_driver,
 )
+from mara_mjx.deploy import in_the_loop
 from mara_mjx.envs.base import EnvConfig
 from mara_mjx.envs.random_target import is_random_target
 from mara_mjx.envs.randomize import RandomizeConfig
@@ -93,6 +103,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="replace the file --json names even if it is not an earlier report of this "
         "command (still never a checkpoint or a run folder's own file)",
     )
+    parser.add_argument(
+        "--env",
+        dest="env_name",
+        metavar="NAME",
+        help="for an exported file: the registered env to run it in (default: the export's)",
+    )
     add_flags(parser, SECTIONS)
     add_cache_argument(parser)
     return parser
@@ -111,25 +127,51 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(args: argparse.Namespace) -> int:
-    configure_jax(args.compilation_cache, uses_real_driver(args, args.checkpoint))
-    group = seeds.group_of(args.checkpoint)  # a run of several seeds: every seed's newest
-    path = None if group else ckpt.find_checkpoint(args.checkpoint)
+    export = load_export(args.checkpoint)  # None: a checkpoint, run folder or seeds run
+    if export is None and args.env_name:
+        raise UserError("--env is for an exported file; a checkpoint runs in its own env")
+    if export is None:
+        real = uses_real_driver(args, args.checkpoint)
+    else:
+        given = overrides(args, "env").get("driver")
+        real = (given or export.meta["env_config"].get("driver", "train")) == "real"
+    configure_jax(args.compilation_cache, real)
+    group = None if export else seeds.group_of(args.checkpoint)  # several seeds: each newest
+    path = None if group or export else ckpt.find_checkpoint(args.checkpoint)
     arrays, meta = ckpt.load_checkpoint(path) if path else (None, None)
     try:
         config = EvalConfig().replace(**overrides(args, "eval"))
     except ValueError as e:
         raise UserError(f"invalid eval config: {e}") from e
     if config.rate_limit:  # (reads the checkpoint's driver only then)
-        check_rate_limit(config, "real" if uses_real_driver(args, args.checkpoint) else "train")
+        check_rate_limit(config, "real" if real else "train")
     if group is not None:
         top = Path(args.checkpoint)
         return evaluate_seeds_run(
             top, group, config, env_overrides(args), args.json, args.overwrite
         )
-    env = runs.make_env(meta, **env_overrides(args))
+    if export is not None:
+        try:
+            env = in_the_loop.make_env(export, args.env_name, **env_overrides(args))
+        except in_the_loop.InTheLoopError as e:
+            raise UserError(str(e)) from e
+        name, policy, folder, stem = env.name, export.policy, export.path.parent, export.path.stem
+        source = {"exported_policy": export.describe()}
+        heading = f"exported policy: {export.path} (sha256 {export.sha256})"
+    else:
+        env = runs.make_env(meta, **env_overrides(args))
+        name, folder, stem = meta["env_name"], runs.run_dir_of(path), path.stem
+        policy = policy_io.policy_from_checkpoint(arrays, meta)
+        source = {
+            "checkpoint": str(path),
+            **{k: meta[k] for k in ("ppo", "policy", "curriculum")},
+            "trained": meta["progress"],
+            "training_versions": meta.get("versions"),
+        }
+        heading = f"checkpoint: {path}"
     driver = env.config.driver
     if is_random_target(env):  # held-out target poses instead of the paper's table
-        default = runs.run_dir_of(path) / f"eval-{path.stem}-{driver}-targets.json"
+        default = folder / f"eval-{stem}-{driver}-targets.json"
         out = check_report(Path(args.json) if args.json else default, args.overwrite)
         for suffix in (".md", ".png"):  # written beside it
             what = f"{suffix[1:]} file beside the report"
@@ -137,20 +179,19 @@ def _main(args: argparse.Namespace) -> int:
                 out.with_suffix(suffix), what, outputs.companion_of(out), args.overwrite
             )
     else:
-        default = runs.run_dir_of(path) / f"eval-{path.stem}-{driver}.json"
+        default = folder / f"eval-{stem}-{driver}.json"
         out = check_report(Path(args.json) if args.json else default, args.overwrite)
-    policy = policy_io.policy_from_checkpoint(arrays, meta)
     if is_random_target(env):
         return target_eval.run(
-            checkpoint=path,
-            meta=meta,
+            name=name,
+            source=source,
+            heading=heading,
             env=env,
             policy=policy,
             eval_overrides=overrides(args, "eval"),
             json_path=str(out),
         )
-    name = meta["env_name"]
-    print(f"checkpoint: {path}")
+    print(heading)
     print(
         f"env: {name}, driver {env.config.driver!r}"
         + (f", velocity {env.config.velocity:g} rad/s" if env.config.driver == "real" else "")
@@ -160,15 +201,14 @@ def _main(args: argparse.Namespace) -> int:
     result = evaluate(env, policy, config)
     orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
     print(format_table(name, result, orientation, config))
+    first = {k: v for k, v in source.items() if k in ("checkpoint", "exported_policy")}
     report = {
-        "checkpoint": str(path),
+        **first,
         "env_name": name,
         "env_config": env.config.to_dict(),
         "eval": config.to_dict(),
-        **{k: meta[k] for k in ("ppo", "policy", "curriculum")},
-        "trained": meta["progress"],
+        **{k: v for k, v in source.items() if k not in first},
         **runs.provenance(),
-        "training_versions": meta.get("versions"),
         "episodes": result.episodes(),
         "summary": result.summary(),
         "paper": PAPER_RESULTS.get(name),
@@ -176,6 +216,16 @@ def _main(args: argparse.Namespace) -> int:
     runs.write_json(out, report)
     print(f"wrote {out}")
     return 0
+
+
+def load_export(arg: str) -> in_the_loop.Export | None:
+    """The exported file `arg` names (in_the_loop.is_export_path), else None."""
+    if not in_the_loop.is_export_path(arg):
+        return None
+    try:
+        return in_the_loop.load(arg)
+    except in_the_loop.InTheLoopError as e:
+        raise UserError(str(e)) from e
 
 
 def check_report(out: Path, overwrite: bool) -> Path:

@@ -160,6 +160,11 @@ class PolicyRunner:
         return cls(policy, meta, str(path))
 
     @property
+    def act(self) -> Any:
+        """The file's policy alone: obs (N, obs_size) float64 -> (N, 6) rad, unclipped."""
+        return self._policy
+
+    @property
     def observation_size(self) -> int:
         return int(self.meta["observation_size"])
 

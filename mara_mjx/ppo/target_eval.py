@@ -256,14 +256,17 @@ def plot(path: Path, res: TargetEvalResult, orientation: bool, title: str) -> Pa
 
 def run(
     *,
-    checkpoint: Path,
-    meta: dict[str, Any],
+    name: str,
+    source: dict[str, Any],
+    heading: str,
     env: Any,
     policy: Any,
     eval_overrides: dict[str, Any],
-    json_path: str | None,
+    json_path: str,
 ) -> int:
-    """The random-target branch of `python -m mara_mjx.evaluate` (flags already parsed)."""
+    """The random-target branch of `python -m mara_mjx.evaluate` (flags already parsed):
+    `name` the env's, `source` the report's fields on the policy evaluated (a checkpoint's
+    or an exported file's), `heading` its first printed line."""
     from mara_mjx.cli.common import UserError
     from mara_mjx.runtime import files
     from mara_mjx.runtime import runs as ckpt
@@ -272,15 +275,13 @@ def run(
         config = eval_config(eval_overrides)
     except ValueError as e:
         raise UserError(f"invalid eval config: {e}") from e
-    name = meta["env_name"]
-    default = f"eval-{checkpoint.stem}-{env.config.driver}-targets.json"
-    out = Path(json_path) if json_path else ckpt.run_dir_of(checkpoint) / default
+    out = Path(json_path)
     try:
         files.check_writable(out.parent)
     except OSError as e:
         raise UserError(f"cannot write the report to {str(out)!r}: {e}") from e
     orientation = bool(env.task.orientation)
-    print(f"checkpoint: {checkpoint}")
+    print(heading)
     print(
         f"env: {name}, driver {env.config.driver!r}"
         + (f", velocity {env.config.velocity:g} rad/s" if env.config.driver == "real" else "")
@@ -295,7 +296,7 @@ def run(
     table = format_markdown(name, env, summary, orientation, config)
     print(table)
     report = {
-        "checkpoint": str(checkpoint),
+        **{k: v for k, v in source.items() if k in ("checkpoint", "exported_policy")},
         "env_name": name,
         "env_config": env.config.to_dict(),
         "eval": config.to_dict(),
@@ -305,10 +306,8 @@ def run(
             "how": "envs.targets.evaluation_poses: numpy SeedSequence(eval seed, "
             "spawn_key=(1,)); training tables use spawn_key (0,)",
         },
-        **{k: meta[k] for k in ("ppo", "policy", "curriculum")},
-        "trained": meta["progress"],
+        **{k: v for k, v in source.items() if k not in ("checkpoint", "exported_policy")},
         **ckpt.provenance(),
-        "training_versions": meta.get("versions"),
         "summary": summary,
         "episodes": res.episodes(),
     }
