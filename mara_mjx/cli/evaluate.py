@@ -86,7 +86,8 @@ SECTIONS = (
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m mara_mjx.evaluate",
-        description="The paper's accuracy table (spec section 7) for a PPO checkpoint.",
+        description="The paper's accuracy table (spec section 7) for a PPO checkpoint "
+        "or an exported policy file (.onnx, .npz).",
         allow_abbrev=False,
     )
     add_checkpoint_argument(parser)
