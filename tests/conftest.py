@@ -124,8 +124,13 @@ def orient() -> Jitted:
 def cli_env(tmp_path_factory) -> dict[str, str]:
     """The environment of the CLI subprocesses (tests/test_train_cli.py and others): the
     CPU, and a persistent compilation cache in a temporary folder shared by the session's
-    subprocesses (so a resumed run or an evaluation reuses a training run's programs)."""
-    cache = tmp_path_factory.mktemp("jax_cache")
+    subprocesses (so a resumed run or an evaluation reuses a training run's programs). Under
+    xdist the folder is shared by every worker of the session (the parent of the workers'
+    base folders): test files on different workers train the same tiny programs. Entries
+    are written atomically (mara_mjx/runtime/jax_cache.py), so workers may share it."""
+    base = tmp_path_factory.getbasetemp()
+    cache = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "jax_cache_cli"
+    cache.mkdir(exist_ok=True)
     return {
         **os.environ,
         "JAX_PLATFORMS": "cpu",
