@@ -1,7 +1,7 @@
-"""Several seeds and populations through the CLIs, as a user runs them (subprocesses,
-tiny settings): a --seeds run is its seeds' single runs, evaluates, resumes and feeds the
-robustness study; population runs; the Orient tasks' default preset end to end. Split
-from test_train_cli.py so that the suite's two workers share the subprocess trainings."""
+"""Several seeds through the CLIs, as a user runs them (subprocesses, tiny settings): a
+--seeds run is its seeds' single runs, evaluates, resumes and feeds the robustness study.
+Split from test_train_cli.py (and the population and Orient-default runs from this file,
+tests/test_preset_cli.py) so that the suite's workers share the subprocess trainings."""
 
 from __future__ import annotations
 
@@ -10,7 +10,6 @@ import shutil
 
 import numpy as np
 import pytest
-from conftest import FAST_COMPILE_FLAGS
 from test_train_cli import CKPT1, CKPT2, TINY, read_rows, run_module
 
 from mara_mjx.ppo import checkpoint as ckpt
@@ -24,15 +23,6 @@ from mara_mjx.ppo import checkpoint as ckpt
 # pool. Since NOTES section 30 a CPU program makes none
 # (test_ik_finish.py::test_cpu_training_programs_hold_no_batched_lapack_call...).
 SEEDS = [*TINY, "--seeds", "2", "--tensorboard", "false"]
-
-
-@pytest.fixture(scope="session")
-def users_env(cli_env) -> dict[str, str]:
-    """cli_env without the suite's LLVM O0 flags: programs compiled as users compile them.
-    The --seeds tests run in it (their deadlocks, NOTES sections 15 and 28, were batched
-    LAPACK calls: see SEEDS). Every process whose results these tests compare runs in it,
-    so the comparisons stay like for like."""
-    return {**cli_env, "XLA_FLAGS": cli_env["XLA_FLAGS"].replace(FAST_COMPILE_FLAGS, "")}
 
 
 @pytest.fixture(scope="session")
@@ -176,55 +166,3 @@ def test_a_seeds_run_resumes_from_its_newest_common_checkpoint(seeds_run, users_
             np.testing.assert_allclose(resumed[name], original[name], atol=1e-6, err_msg=name)
         rows = read_rows(copy / f"seed_{s}" / "progress.csv")
         assert [int(r["update"]) for r in rows] == [1, 2]
-
-
-def test_population_run_trains_checkpoints_and_evaluates(users_env, tmp_path):
-    """`--population 2` through the CLIs, with the CLI's own preset for MARA (ik_finish:
-    the IK step in the vmapped program, which deadlocked XLA:CPU before NOTES section
-    30): member 0's policy in the checkpoints, which `evaluate` reads like any run's."""
-    out = tmp_path / "run"
-    args = [*TINY, "--population", "2", "--tensorboard", "false", "--out", str(out)]
-    proc = run_module(users_env, "mara_mjx.train", *args)
-    assert proc.returncode == 0, proc.stderr[-4000:]
-    config = json.loads((out / "config.json").read_text())
-    assert config["curriculum"]["population"] == 2
-    arrays, _ = ckpt.load_checkpoint(out / CKPT2)
-    assert arrays["params/params/log_std"].shape == (2, 6)  # both members saved
-    assert arrays["fitness"].shape == (2,)
-    report = tmp_path / "eval.json"
-    proc = run_module(users_env, "mara_mjx.evaluate", str(out), "--json", str(report))
-    assert proc.returncode == 0, proc.stderr[-4000:]
-    assert json.loads(report.read_text())
-
-
-def test_orient_task_default_trains_and_its_checkpoint_runs_without_the_training_rules(
-    users_env, tmp_path
-):
-    """A fixed Orient task with no --preset (orient_first) through the CLIs: the run records
-    the training-only rules (the roll gate, the loose standoff), `evaluate` reads the
-    checkpoint, the policy a user loads from it runs without them, and `export` refuses
-    it with the way out (--preset default) named, writing nothing."""
-    from mara_mjx.ppo.policy import make_policy
-
-    out = tmp_path / "run"
-    tiny = [*TINY[2:], "--env", "MARAOrient", "--tensorboard", "false"]
-    tiny += ["--probe_reach_steps", "5"]  # the Orient tasks' time to accuracy
-    proc = run_module(users_env, "mara_mjx.train", *tiny, "--out", str(out))
-    assert proc.returncode == 0, proc.stderr[-4000:]
-    saved = json.loads((out / "config.json").read_text())
-    ppo = {**saved["policy"], **saved["curriculum"]}  # the sections the fields moved to
-    assert ppo["ik_orient_first"] and ppo["train_ik_gate_roll"] and ppo["stagger_episodes"]
-    assert ppo["train_ik_orient_loose"] and ppo["probe_reach_steps"] == 5
-    rows = read_rows(out / "progress.csv")  # one update per call: every row probed
-    assert rows and all(float(r["reach_error_mm"]) > 0.0 for r in rows), rows
-    report = tmp_path / "eval.json"
-    proc = run_module(users_env, "mara_mjx.evaluate", str(out), "--json", str(report))
-    assert proc.returncode == 0, proc.stderr[-4000:]
-    assert json.loads(report.read_text())
-    policy = make_policy(str(out / CKPT2))
-    assert policy.config.policy.train_ik_gate_roll and not policy.network.ik_gate_roll
-    assert policy.config.policy.train_ik_orient_loose and not policy.network.ik_orient_loose
-    exported = tmp_path / "policy.npz"
-    proc = run_module(users_env, "mara_mjx.export", str(out), str(exported))
-    assert proc.returncode != 0 and "--preset default" in proc.stderr, proc.stderr[-2000:]
-    assert not exported.exists()
