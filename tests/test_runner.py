@@ -21,7 +21,7 @@ from conftest import jitted
 from test_export_plots import make_run
 
 from mara_mjx.cli.export import export_policy, load_exported
-from mara_mjx.deploy import ik_numpy, runner
+from mara_mjx.deploy import ik_numpy, numpy_policy, runner
 from mara_mjx.deploy.runner import PolicyRunner, RunnerError
 from mara_mjx.ppo import make_policy
 
@@ -172,11 +172,12 @@ def test_closed_loop_episode_equals_the_jax_policys(exports, name):
 
 
 def test_runner_file_imports_no_jax(exports, tmp_path):
-    """runner.py and ik_numpy.py copied into a folder and loaded by path, as on a robot:
-    running both formats imports neither JAX, the mara_mjx package nor rclpy."""
+    """runner.py, numpy_policy.py and ik_numpy.py copied into a folder and loaded by path,
+    as on a robot: running both formats imports neither JAX, the mara_mjx package nor
+    rclpy."""
     deploy = tmp_path / "robot"
     deploy.mkdir()
-    for module in (runner, ik_numpy):
+    for module in (runner, numpy_policy, ik_numpy):
         shutil.copy(module.__file__, deploy)
     code = textwrap.dedent(
         f"""
@@ -202,6 +203,15 @@ def test_runner_file_imports_no_jax(exports, tmp_path):
     for path, action in report["out"].items():
         here = PolicyRunner.load(path).step(q, [-0.4, 0.1, 0.72])
         np.testing.assert_allclose(action, here, atol=1e-12)
+
+
+def test_numpy_policy_restates_the_npz_format():
+    """numpy_policy.py imports no mara_mjx module: its copies of the .npz format's
+    constants are the package's (runtime/npzmeta.py)."""
+    from mara_mjx.runtime import npzmeta
+
+    assert numpy_policy.META_KEY == npzmeta.META_KEY
+    assert numpy_policy._NPZ_ERRORS == npzmeta.NPZ_ERRORS
 
 
 def test_bad_inputs_and_exports_are_refused(exports, tmp_path):

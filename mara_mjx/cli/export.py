@@ -6,21 +6,18 @@ an ONNX model (the suffix chooses).
     python -m mara_mjx.export runs/MARA-.../ OUT.onnx       # ONNX (pip install ".[export]")
     python -m mara_mjx.export runs/MARA-.../ OUT.onnx --batch 1   # one arm per call, faster
 
-    from mara_mjx.cli.export import load_exported
+    from mara_mjx.cli.export import load_exported   # mara_mjx.deploy.numpy_policy's
     policy = load_exported("OUT.npz")
     action = policy(obs)          # (obs_size,) or (N, obs_size) -> (..., 6) rad, numpy only
 
-What `policy(obs)` computes is what `mara_mjx.ppo.make_policy` computes (the
-deterministic Gaussian mean): z = clip((obs - mean) / sqrt(var + 1e-8), -obs_clip,
-obs_clip) when the run normalised observations (else z = obs), where obs first has its
-quaternion block obs[quat_index:quat_index + 4] multiplied by the sign of its w when the
-run used `canonical_quat` (quat_index >= 0 in the meta), z[..., hidden_obs] = 0,
-then the actor's tanh MLP (linear output layer), plus obs[..., :6] (the current joint
-positions) when the run used `relative_actions`; a policy with an IK finish
-(PolicyConfig.ik_finish; format mara_mjx.export/2, meta "ik_finish") first replaces that
-displacement near the target by the IK step (mara_mjx/deploy/ik_numpy.py). The action is an
-absolute joint target (rad) for motor1..motor6; the env clips it to the joint limits
-(`policy(obs, clip=True)` does the same here). The .onnx file: input "obs" (N, obs_size)
+`policy(obs)` computes what `mara_mjx.ppo.make_policy` computes (the deterministic
+Gaussian mean), in numpy: `NumpyPolicy` of mara_mjx/deploy/numpy_policy.py, whose module
+docstring states the computation (quaternion sign, observation normaliser, hidden
+observations, the tanh MLP, max_joint_step, relative actions and, for a policy with an
+IK finish (PolicyConfig.ik_finish; format mara_mjx.export/2, meta "ik_finish"), the IK
+step near the target, mara_mjx/deploy/ik_numpy.py). The action is an absolute joint
+target (rad) for motor1..motor6; the env clips it to the joint limits (`policy(obs,
+clip=True)` does the same here). The .onnx file: input "obs" (N, obs_size)
 float32, outputs "action" and "action_clipped" (N, 6) rad; a joint-space policy's graph is
 written node by node (`mara_mjx/deploy/onnx_policy.py`, needs onnx), a policy with IK rules
 (ik_prior, task_space_actions, ik_finish) is traced from the JAX policy by jax2onnx, all
@@ -58,8 +55,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
-import functools
 import json
 import os
 import sys
@@ -68,21 +63,22 @@ from typing import Any
 
 import numpy as np
 
+# the exported file's reader, numpy only (the robot-side runner's too)
+from mara_mjx.deploy.numpy_policy import (
+    FORMAT,
+    FORMAT_FINISH,
+    FORMATS,
+    OBS_VAR_EPS,
+    SUFFIXES,
+    ExportError,
+    NumpyPolicy,  # noqa: F401  (re-exported: mara_mjx.cli.export.NumpyPolicy)
+    from_arrays,
+    load_exported,
+)
 from mara_mjx.runtime import files
 from mara_mjx.runtime.npzmeta import META_KEY, NPZ_ERRORS, read_npz_with_meta
 
-FORMAT = "mara_mjx.export/1"
-FORMAT_FINISH = "mara_mjx.export/2"
-"""The format of a file that keeps an IK finish (meta "ik_finish"): a reader of /1 alone
-would run the policy without it, so such files say /2 and older readers refuse them."""
-FORMATS = (FORMAT, FORMAT_FINISH)
-SUFFIXES = (".npz", ".onnx")
-OBS_VAR_EPS = 1e-8  # mara_mjx.ppo.networks.normalize
 PROG = "python -m mara_mjx.export"
-
-
-class ExportError(ValueError):
-    """A missing or corrupt checkpoint or exported file, or an output that cannot be written."""
 
 
 def export_policy(
@@ -225,7 +221,7 @@ def export_policy(
     if out_path.suffix == ".onnx":
         from mara_mjx.deploy import onnx_policy
 
-        _write_atomic(out_path, lambda f: onnx_policy.save(_from_arrays(out, export_meta), f))
+        _write_atomic(out_path, lambda f: onnx_policy.save(from_arrays(out, export_meta), f))
     else:
         _write_atomic(out_path, lambda f: np.savez(f, **out))
     return out_path
@@ -254,130 +250,6 @@ def _write_atomic(path: Path, write: Any) -> None:
         files.write_atomic(path, write)
     except OSError as e:
         raise ExportError(f"cannot write {str(path)!r}: {e}") from e
-
-
-@dataclasses.dataclass(frozen=True)
-class NumpyPolicy:
-    """The exported deterministic policy, numpy only. `policy(obs)` -> action (rad)."""
-
-    kernels: tuple[np.ndarray, ...]
-    """(in, out) per layer; tanh after every layer but the last."""
-    biases: tuple[np.ndarray, ...]
-    obs_mean: np.ndarray | None
-    """(obs_size,) or None when the run did not normalise observations."""
-    obs_var: np.ndarray | None
-    meta: dict[str, Any]
-    """The file's metadata (see the module docstring)."""
-
-    @property
-    def observation_size(self) -> int:
-        return int(self.meta["observation_size"])
-
-    @property
-    def action_size(self) -> int:
-        return int(self.meta["action_size"])
-
-    @property
-    def env_name(self) -> str:
-        return str(self.meta["env_name"])
-
-    @property
-    def joint_lower(self) -> np.ndarray:
-        """(6,) rad."""
-        return np.asarray(self.meta["action"]["lower"], np.float32)
-
-    @property
-    def joint_upper(self) -> np.ndarray:
-        """(6,) rad."""
-        return np.asarray(self.meta["action"]["upper"], np.float32)
-
-    @property
-    def observation_layout(self) -> dict[str, slice]:
-        """Observation part name -> slice of the last axis."""
-        return {p["name"]: slice(p["start"], p["stop"]) for p in self.meta["observation_layout"]}
-
-    @functools.cached_property
-    def _finish(self) -> Any:
-        """The meta's IK finish, built once (ik_numpy.NumpyFinish), or None."""
-        if not self.meta.get("ik_finish"):
-            return None
-        from mara_mjx.deploy.ik_numpy import NumpyFinish
-
-        return NumpyFinish(self.meta["ik_finish"])
-
-    def __call__(self, obs: Any, clip: bool = False) -> np.ndarray:
-        """obs (..., obs_size) raw observation -> action (..., action_size) float32 rad.
-        `clip`: clip to the joint limits as the env does (make_policy does not)."""
-        x = np.asarray(obs)
-        if x.dtype.kind not in "biuf":
-            raise ValueError(f"obs must be numeric, got dtype {x.dtype}")
-        if x.ndim < 1 or x.shape[-1] != self.observation_size:
-            raise ValueError(
-                f"obs must have shape (..., {self.observation_size}) for {self.env_name}, "
-                f"got {x.shape}"
-            )
-        x = raw = x.astype(np.float64)
-        quat = int(self.meta.get("quat_index", -1))
-        if quat >= 0:  # canonical sign, w >= 0 (PolicyConfig.canonical_quat)
-            x = x.copy()
-            sign = np.where(x[..., quat : quat + 1] < 0, -1.0, 1.0)
-            x[..., quat : quat + 4] *= sign
-        if self.obs_mean is not None:
-            clip_obs = float(self.meta["obs_clip"])
-            x = (x - self.obs_mean) / np.sqrt(self.obs_var.astype(np.float64) + OBS_VAR_EPS)
-            x = np.clip(x, -clip_obs, clip_obs)
-        hidden = self.meta.get("hidden_obs", [])
-        if hidden:
-            x = x.copy()
-            x[..., hidden] = 0.0
-        for i, (kernel, bias) in enumerate(zip(self.kernels, self.biases, strict=True)):
-            x = x @ kernel.astype(np.float64) + bias
-            if i < len(self.kernels) - 1:
-                x = np.tanh(x)
-        if self.meta.get("relative_actions", False):
-            step = float(self.meta.get("max_joint_step", 0.0))
-            if step > 0.0:  # PolicyConfig.max_joint_step
-                x = step * np.tanh(x / step)
-            if self._finish is not None:  # PolicyConfig.ik_finish (mara_mjx/deploy/ik_numpy.py)
-                x = self._finish(raw[..., : self.action_size], raw[..., 6:9], x)
-            x = x + raw[..., : self.action_size]
-        if clip:
-            x = np.clip(x, self.joint_lower, self.joint_upper)
-        return x.astype(np.float32)
-
-
-def load_exported(path: str | os.PathLike) -> NumpyPolicy:
-    """The `NumpyPolicy` of a file written by `export_policy`; ExportError if missing,
-    corrupt or not such a file."""
-    path = Path(path)
-    if not path.is_file():
-        raise ExportError(f"exported policy {str(path)!r} does not exist (or is not a file)")
-    try:
-        arrays, meta = read_npz_with_meta(path)
-    except NPZ_ERRORS as e:
-        raise ExportError(
-            f"{str(path)!r} is corrupt or not an exported mara_mjx policy: {e}"
-        ) from e
-    if not isinstance(meta, dict) or meta.get("format") not in FORMATS:
-        found = meta.get("format") if isinstance(meta, dict) else None
-        raise ExportError(f"{str(path)!r} has format {found!r}, expected one of {FORMATS}")
-    return _from_arrays(arrays, meta, str(path))
-
-
-def _from_arrays(arrays: Any, meta: dict[str, Any], where: str = "the export") -> NumpyPolicy:
-    n_layers = len(meta["hidden_sizes"]) + 1
-    try:
-        kernels = tuple(arrays[f"layer_{i}/kernel"] for i in range(n_layers))
-        biases = tuple(arrays[f"layer_{i}/bias"] for i in range(n_layers))
-        stats = (arrays["obs_mean"], arrays["obs_var"]) if meta["normalize_obs"] else (None, None)
-    except KeyError as e:
-        raise ExportError(f"{where!r} lacks the array {e}") from e
-    if (
-        kernels[0].shape[0] != meta["observation_size"]
-        or kernels[-1].shape[1] != (meta["action_size"])
-    ):
-        raise ExportError(f"{where!r}: layer shapes do not match the observation/action sizes")
-    return NumpyPolicy(kernels, biases, stats[0], stats[1], meta)
 
 
 def build_parser() -> argparse.ArgumentParser:

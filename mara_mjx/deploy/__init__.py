@@ -1,1 +1,2 @@
-"""Policies outside JAX: the numpy IK finish and the ONNX graph of an exported policy."""
+"""Policies outside JAX: an exported policy in numpy (with its IK finish) and as ONNX
+graphs, the robot-side runner, an exported file in the evaluation loop."""

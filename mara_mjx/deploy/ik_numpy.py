@@ -2,12 +2,12 @@
 
 `python -m mara_mjx.export` writes the nominal arm's chain (mara_mjx/envs/chain.py: base
 pose, body offsets, hinge axes and anchors, the TCP site) and mara_mjx/envs/task_space.py's
-constants into an .npz policy's meta (`finish_meta`); `export.NumpyPolicy` then runs the
-same last approach as the JAX policy (`NumpyFinish`): a learnt step that would jump into
-the finish zone is cut to just inside its edge (task_space.stop_outside), and within the
-zone the step is the position-only damped-least-squares IK step, first toward 1 cm short
-of the target (task_space.finish_step). Float64 here, float32 in JAX: equal to float
-tolerance (tests/test_export_plots.py), except where a bisection step lands within
+constants into an .npz policy's meta (`finish_meta`); numpy_policy.NumpyPolicy then runs
+the same last approach as the JAX policy (`NumpyFinish`): a learnt step that would jump
+into the finish zone is cut to just inside its edge (task_space.stop_outside), and within
+the zone the step is the position-only damped-least-squares IK step, first toward 1 cm
+short of the target (task_space.finish_step). Float64 here, float32 in JAX: equal to
+float tolerance (tests/test_export_plots.py), except where a bisection step lands within
 rounding of the zone's edge.
 """
 

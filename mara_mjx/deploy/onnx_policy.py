@@ -35,7 +35,7 @@ IR_VERSION = 8  # readable by every onnxruntime since 1.10
 
 
 def build_model(policy: Any) -> Any:
-    """The onnx.ModelProto of an `export.NumpyPolicy`."""
+    """The onnx.ModelProto of a `numpy_policy.NumpyPolicy`."""
     import onnx
     from onnx import TensorProto, helper, numpy_helper
 

@@ -8,10 +8,10 @@ and a target pose, the next joint targets every control period. numpy (+ onnxrun
     every runner.control_dt seconds (0.05 s):
         targets = runner.step(q, target_pos, target_quat)   # q (6,) rad -> (6,) rad
 
-On a robot without JAX, copy this file and its sibling `ik_numpy.py` (the arm's forward
-kinematics and the IK finish) into one folder, next to the exported policy, and load it by
-path; importing `mara_mjx.deploy.runner` imports the `mara_mjx` package, which imports
-JAX:
+On a robot without JAX, copy this file and its siblings `numpy_policy.py` (the .npz
+policy) and `ik_numpy.py` (the arm's forward kinematics and the IK finish) into one
+folder, next to the exported policy, and load it by path; importing
+`mara_mjx.deploy.runner` imports the `mara_mjx` package, which imports JAX:
 
     import importlib.util
     spec = importlib.util.spec_from_file_location("mara_runner", "/opt/mara/runner.py")
@@ -44,11 +44,11 @@ model: tests/test_runner.py). quat_tcp composes the same chain's rotations as
 quaternions (ik_numpy's frames return positions and axes only).
 
 The policy: .onnx runs in an onnxruntime session (its "action" output; the file keeps its
-metadata in metadata_props["mara_mjx"]); .npz runs `export.NumpyPolicy`'s computation
-(mara_mjx/cli/export.py's module docstring: quaternion sign, normaliser, hidden
-observations, the tanh MLP, max_joint_step, the IK finish, relative actions) in float64,
-restated here so that no JAX-importing module is needed; tests/test_runner.py holds both
-equal to the JAX policy. Formats other than mara_mjx.export/1 and /2 are refused.
+metadata in metadata_props["mara_mjx"]); .npz runs `numpy_policy.NumpyPolicy.act`, the
+code of `mara_mjx.cli.export.load_exported` (numpy_policy.py's module docstring:
+quaternion sign, normaliser, hidden observations, the tanh MLP, max_joint_step, the IK
+finish, relative actions) in float64; tests/test_runner.py holds both equal to the JAX
+policy. Formats other than mara_mjx.export/1 and /2 are refused.
 """
 
 from __future__ import annotations
@@ -56,28 +56,29 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
-import zipfile
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 if __package__:  # imported as mara_mjx.deploy.runner
-    from mara_mjx.deploy import ik_numpy
-else:  # a copied file, loaded by path: its sibling ik_numpy.py
-    _sibling = Path(__file__).with_name("ik_numpy.py")
+    from mara_mjx.deploy import ik_numpy, numpy_policy
+else:  # a copied file, loaded by path: its siblings (numpy_policy.py loads ik_numpy.py)
+    _sibling = Path(__file__).with_name("numpy_policy.py")
     if not _sibling.is_file():
         raise ImportError(
-            f"{__file__} needs ik_numpy.py next to it (copy mara_mjx/deploy/ik_numpy.py "
-            "into the same folder)"
+            f"{__file__} needs numpy_policy.py and ik_numpy.py next to it (copy them from "
+            "mara_mjx/deploy/ into the same folder)"
         )
-    _spec = importlib.util.spec_from_file_location("mara_runner_ik_numpy", _sibling)
-    ik_numpy = importlib.util.module_from_spec(_spec)
-    _spec.loader.exec_module(ik_numpy)
+    _spec = importlib.util.spec_from_file_location("mara_runner_numpy_policy", _sibling)
+    numpy_policy = importlib.util.module_from_spec(_spec)
+    sys.modules[_spec.name] = numpy_policy  # where its dataclass looks its module up
+    _spec.loader.exec_module(numpy_policy)
+    ik_numpy = numpy_policy.ik_numpy
 
-FORMATS = ("mara_mjx.export/1", "mara_mjx.export/2")  # mara_mjx/cli/export.py's
-SUFFIXES = (".npz", ".onnx")
-META_KEY = "__meta__"
+FORMATS = numpy_policy.FORMATS
+SUFFIXES = numpy_policy.SUFFIXES
 PART_SIZES = {"q": 6, "e": 3, "quat_err": 4, "v": 3}
 """The observation parts the runner builds, and their sizes."""
 
@@ -345,69 +346,11 @@ def _mat_to_quat(m: Any) -> np.ndarray:
 # ------------------------------------------------------------------ the policies
 def _load_npz(path: Path) -> tuple[Any, dict[str, Any]]:
     try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-        meta = json.loads(str(arrays.pop(META_KEY)))
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
-        raise RunnerError(
-            f"{str(path)!r} is corrupt or not an exported mara_mjx policy: {e}"
-        ) from e
-    if not isinstance(meta, dict):
-        raise RunnerError(f"{str(path)!r} is not an exported mara_mjx policy")
-    _check_layout(meta, str(path))
-    return _NumpyMlp(arrays, meta, str(path)), meta
-
-
-class _NumpyMlp:
-    """export.NumpyPolicy's computation, float64, its constants prepared once."""
-
-    def __init__(self, arrays: dict[str, np.ndarray], meta: dict[str, Any], where: str):
-        if meta.get("activation", "tanh") != "tanh":
-            raise RunnerError(f"{where!r}: activation {meta['activation']!r}, expected 'tanh'")
-        n_layers = len(meta["hidden_sizes"]) + 1
-        try:
-            self.kernels = [arrays[f"layer_{i}/kernel"].astype(np.float64) for i in range(n_layers)]
-            self.biases = [arrays[f"layer_{i}/bias"].astype(np.float64) for i in range(n_layers)]
-            normalize = bool(meta["normalize_obs"])
-            mean = arrays["obs_mean"].astype(np.float64) if normalize else None
-            var = arrays["obs_var"].astype(np.float64) if normalize else None
-        except KeyError as e:
-            raise RunnerError(f"{where!r} lacks the array {e}") from e
-        if self.kernels[0].shape[0] != meta["observation_size"]:
-            raise RunnerError(f"{where!r}: the first layer does not take the observation")
-        self.mean = mean
-        self.inv_std = None if var is None else 1.0 / np.sqrt(var + float(meta["obs_var_eps"]))
-        self.obs_clip = float(meta.get("obs_clip", 0.0))
-        self.quat = int(meta.get("quat_index", -1))
-        self.visible = np.ones(meta["observation_size"])
-        self.visible[list(meta.get("hidden_obs", []))] = 0.0
-        self.relative = bool(meta.get("relative_actions", False))
-        self.max_step = float(meta.get("max_joint_step", 0.0))
-        self.finish = ik_numpy.NumpyFinish(meta["ik_finish"]) if meta.get("ik_finish") else None
-        self.n = int(meta["action_size"])
-        self.e = _check_layout(meta, where).get("e", slice(6, 9))
-
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        x = obs
-        if self.quat >= 0:  # canonical sign, w >= 0
-            x = obs.copy()
-            x[:, self.quat : self.quat + 4] *= np.where(x[:, self.quat : self.quat + 1] < 0, -1, 1)
-        if self.mean is not None:
-            x = np.clip((x - self.mean) * self.inv_std, -self.obs_clip, self.obs_clip)
-        x = x * self.visible
-        last = len(self.kernels) - 1
-        for i, (kernel, bias) in enumerate(zip(self.kernels, self.biases, strict=True)):
-            x = x @ kernel + bias
-            if i < last:
-                x = np.tanh(x)
-        if self.relative:
-            if self.max_step > 0.0:
-                x = self.max_step * np.tanh(x / self.max_step)
-            q = obs[:, : self.n]
-            if self.finish is not None:
-                x = self.finish(q, obs[:, self.e], x)
-            x = x + q
-        return x
+        policy = numpy_policy.load_exported(path)
+    except numpy_policy.ExportError as e:
+        raise RunnerError(str(e)) from e
+    _check_layout(policy.meta, str(path))
+    return policy.act, policy.meta
 
 
 def _load_onnx(path: Path, threads: int) -> tuple[Any, dict[str, Any]]:
