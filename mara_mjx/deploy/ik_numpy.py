@@ -8,7 +8,8 @@ into the finish zone is cut to just inside its edge (task_space.stop_outside), a
 the zone the step is the position-only damped-least-squares IK step, first toward 1 cm
 short of the target (task_space.finish_step). Float64 here, float32 in JAX: equal to
 float tolerance (tests/test_export_plots.py), except where a bisection step lands within
-rounding of the zone's edge.
+rounding of the zone's edge. `NumpyFinish.frames` (the chain's forward kinematics) and
+`quat_mul` are the robot-side runner's too (runner.py).
 """
 
 from __future__ import annotations
@@ -38,6 +39,22 @@ def finish_meta(radius: float) -> dict[str, Any]:
         "joint_upper": list(upper),
         "chain": {k: np.asarray(getattr(chain, k), np.float64).tolist() for k in CHAIN_FIELDS},
     }
+
+
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product a (x) b of (..., 4) (w, x, y, z) quaternions: the numpy twin of
+    mara_mjx/envs/geometry.py's (JAX there; this file imports numpy only)."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
 
 
 def _rodrigues(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:

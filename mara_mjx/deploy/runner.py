@@ -223,7 +223,7 @@ class PolicyRunner:
         parts = {"q": q, "e": tcp - target_pos}
         if self._quat_err:
             conj = target_quat * np.array([1.0, -1.0, -1.0, -1.0])
-            parts["quat_err"] = _quat_mul(self._tcp_quat(q), conj)
+            parts["quat_err"] = ik_numpy.quat_mul(self._tcp_quat(q), conj)
         if self._v:
             if self._previous is None:
                 parts["v"] = np.zeros_like(tcp)
@@ -293,24 +293,9 @@ def _unit(quat: np.ndarray) -> np.ndarray:
     return quat / np.linalg.norm(quat)
 
 
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product a (x) b of (..., 4) (w, x, y, z) (mara_mjx/envs/geometry.py's)."""
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
-
-
 def _right(b: Any) -> np.ndarray:
     """The (4, 4) matrix R with a @ R = a (x) b for row quaternions a (..., 4)."""
-    return _quat_mul(np.eye(4), np.asarray(b, np.float64)[None])
+    return ik_numpy.quat_mul(np.eye(4), np.asarray(b, np.float64)[None])
 
 
 def _mat_to_quat(m: Any) -> np.ndarray:
