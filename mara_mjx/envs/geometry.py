@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -9,9 +11,20 @@ import numpy as np
 
 def quat_mul(a: jax.Array, b: jax.Array) -> jax.Array:
     """Hamilton product a (x) b."""
-    aw, ax, ay, az = jnp.moveaxis(a, -1, 0)
-    bw, bx, by, bz = jnp.moveaxis(b, -1, 0)
-    return jnp.stack(
+    return _hamilton(jnp, a, b)
+
+
+def quat_mul_np(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product a (x) b in numpy (host side: target tables)."""
+    return _hamilton(np, a, b)
+
+
+def _hamilton(xp: Any, a: Any, b: Any) -> Any:
+    """a (x) b with the array module `xp` (jax.numpy or numpy; mara_mjx/deploy/ik_numpy.py
+    holds a numpy copy, as the robot-side runner imports no mara_mjx module)."""
+    aw, ax, ay, az = xp.moveaxis(a, -1, 0)
+    bw, bx, by, bz = xp.moveaxis(b, -1, 0)
+    return xp.stack(
         [
             aw * bw - ax * bx - ay * by - az * bz,
             aw * bx + ax * bw + ay * bz - az * by,

@@ -53,6 +53,7 @@ import mujoco
 import numpy as np
 
 from mara_mjx.envs.arm import JOINTS, TABLE_TOP_Z
+from mara_mjx.envs.geometry import quat_mul_np
 from mara_mjx.envs.geometry import quat_to_mat_np as _quat_to_mat
 
 TRAIN_STREAM = 0
@@ -144,20 +145,6 @@ def _rotate(rot: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
         [z * x * t - y * s, z * y * t + x * s, c + z * z * t],
     ]
     return rot @ np.stack([np.stack(r, -1) for r in rows], -2)
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        -1,
-    )
 
 
 def random_rotations(rng: np.random.Generator, n: int, spread: float) -> np.ndarray:
@@ -268,7 +255,7 @@ def candidates(
         n = CHUNK
         tried += n
         q123 = rng.uniform(chain.lower[:3], chain.upper[:3], (n, 3))
-        quat = _quat_mul(random_rotations(rng, n, spread), ref)
+        quat = quat_mul_np(random_rotations(rng, n, spread), ref)
         q = chain.solve_wrist(q123, _quat_to_mat(quat), rng.uniform(size=n) < 0.5)
         ok = np.all((q >= chain.lower) & (q <= chain.upper), 1)
         pos, _ = chain.forward(q)
