@@ -289,6 +289,7 @@ def judge(config: RobustnessConfig, job: Job, timing: dict[str, Any]) -> list[di
     """Judge one trained job's seeds: the seed records and the metric records."""
     import jax
 
+    from mara_mjx.envs.mara import is_orient_task
     from mara_mjx.envs.random_target import is_random_target
     from mara_mjx.ppo.seed_eval import stack_policies
     from mara_mjx.runtime import runs
@@ -303,7 +304,7 @@ def judge(config: RobustnessConfig, job: Job, timing: dict[str, Any]) -> list[di
         return [{"kind": "error", **base, "error": f"cannot load the seeds' checkpoints: {e}"}]
     policy = stack_policies(policies)
     env = runs.make_env(meta)
-    orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
+    orientation = is_orient_task(env)
     if is_random_target(env):
         rows = judge_targets(env, policy, len(seeds), config, orientation)
     else:

@@ -64,6 +64,7 @@ from mara_mjx.cli.common import (
 )
 from mara_mjx.deploy import in_the_loop
 from mara_mjx.envs.base import EnvConfig
+from mara_mjx.envs.mara import is_orient_task
 from mara_mjx.envs.random_target import is_random_target
 from mara_mjx.envs.randomize import RandomizeConfig
 from mara_mjx.envs.rewards import RewardParams
@@ -200,7 +201,7 @@ def _main(args: argparse.Namespace) -> int:
         flush=True,
     )
     result = evaluate(env, policy, config)
-    orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
+    orientation = is_orient_task(env)
     print(format_table(name, result, orientation, config))
     first = {k: v for k, v in source.items() if k in ("checkpoint", "exported_policy")}
     report = {
@@ -268,7 +269,7 @@ def evaluate_seeds_run(
         seed_eval.seed_row(s, r, m["progress"].get("milestones", {}))
         for s, r, (_, m) in zip(seed_ids, results, loaded, strict=True)
     ]
-    orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
+    orientation = is_orient_task(env)
     report = seed_eval.summarise(name, orientation, rows, eval_config.to_dict())
     report.update(
         run=str(top),

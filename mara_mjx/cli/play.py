@@ -60,6 +60,7 @@ from mara_mjx.cli.common import (
     uses_real_driver,
 )
 from mara_mjx.envs.base import EnvConfig
+from mara_mjx.envs.mara import is_orient_task
 from mara_mjx.envs.randomize import RandomizeConfig
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import policy as policy_io
@@ -270,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
         raise UserError(str(e)) from e
 
     fps = args.fps if args.fps is not None else 1.0 / cfg.control_dt
-    orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
+    orientation = is_orient_task(env)
     writer = None
     try:
         if video_path is not None:

@@ -47,6 +47,7 @@ import numpy as np
 from tqdm import tqdm
 
 from mara_mjx.cli.common import UserError
+from mara_mjx.envs.mara import is_orient_task
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import logger, seed_eval
 from mara_mjx.ppo.divergence import check_finite
@@ -245,7 +246,7 @@ def _train(plan, env, trainer, host: Host, st, seeds, locks: list) -> int:
     }
     host.announce({**resolved, "seeds": list(seeds)})
 
-    orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
+    orientation = is_orient_task(env)
     try:
         with host.stop:  # (on resume the loggers rewrite progress.csv: inside it)
             for lane in lanes:

@@ -72,6 +72,7 @@ from mara_mjx.cli.common import (
     uses_real_driver,
 )
 from mara_mjx.cli.train_plan import Plan, build_parser, resolve
+from mara_mjx.envs.mara import is_orient_task
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import logger, warmup
 from mara_mjx.ppo.divergence import check_finite
@@ -158,7 +159,7 @@ def _train(plan: Plan, env: Any, trainer: Trainer, main_process: bool, announce:
     else:
         print(f"{distributed.describe()}: joined; process 0 writes the run folder", flush=True)
 
-    orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
+    orientation = is_orient_task(env)
     milestones = logger.Milestones(progress.get("milestones"))
     evaluate_fn = make_evaluate(env, plan.eval) if main_process and plan.run.evaluate else None
     log = distributed.NoLog(logger.columns(orientation))
@@ -360,7 +361,7 @@ def finish(
         if result is None:
             policy = make_policy(state, plan.config)
             result = evaluate(env, policy, plan.eval, fn=evaluate_fn)
-        orientation = bool(getattr(getattr(env, "task", None), "orientation", False))
+        orientation = is_orient_task(env)
         print(format_table(plan.env_name, result, orientation, plan.eval), flush=True)
         report = {
             **{

@@ -73,6 +73,13 @@ TASKS = {
     ),
 }
 
+
+def is_orient_task(env: Any) -> bool:
+    """Whether `env` rewards and observes the orientation error (its `task` is an Orient
+    Task; a random-target variant's too); False for an env without a task (a user's)."""
+    return bool(getattr(getattr(env, "task", None), "orientation", False))
+
+
 _ARMS: dict[bool, Arm] = {}
 
 
