@@ -29,6 +29,7 @@ ORIENT_FIRST = {
     "ik_wrap": True,
     "ik_gate_wrap": True,
     "ik_orient_first": True,
+    "collision_guard_mm": 5.0,
 }
 """PRESETS["orient_first"]'s deployed rules (its training-only ones are not exported)."""
 SIDES = (1.0 - 1e-3, 1.0 + 1e-3)  # inside and outside each threshold

@@ -98,6 +98,9 @@ class RobustnessConfig(BenchConfig):
     rate_limit: bool = False
     """Real-driver judgement: the policy's steps limited to the servos' travel per step
     (EvalConfig.rate_limit)."""
+    collision_guard_mm: float = -1.0
+    """Every judgement: the deployed policy's collision guard (EvalConfig.collision_guard_mm;
+    -1: as each checkpoint was trained; >= 0 replaces it, 0: off)."""
     fail_fraction: float = 0.99
     """targets and real: a seed fails below this fraction of episodes within 5 mm (5 deg)."""
     bootstrap: int = 2000

@@ -47,7 +47,10 @@ def judge_fixed(env: Any, policy: Any, n: int, config: Any, orientation: bool):
     """Per seed: the paper's evaluation and the hold (bench.robustness's docstring)."""
     from mara_mjx.ppo.config import EvalConfig
 
-    paper_cfg = EvalConfig(episodes=config.episodes, seed=config.eval_seed)
+    paper_cfg = EvalConfig(
+        episodes=config.episodes, seed=config.eval_seed,
+        collision_guard_mm=config.collision_guard_mm,
+    )  # fmt: skip
     hold_cfg = paper_cfg.replace(tolerance_mm=0.0)
     paper = _vmapped(env, paper_cfg, None, policy, n)
     hold = _vmapped(env, hold_cfg, None, policy, n)
@@ -125,7 +128,9 @@ def judge_targets(env: Any, policy: Any, n: int, config: Any, orientation: bool)
     """Per seed: the held-out poses (ppo.target_eval's poses and episodes)."""
     from mara_mjx.ppo.target_eval import DEFAULTS
 
-    eval_cfg = DEFAULTS.replace(episodes=config.poses, seed=config.eval_seed)
+    eval_cfg = DEFAULTS.replace(
+        episodes=config.poses, seed=config.eval_seed, collision_guard_mm=config.collision_guard_mm
+    )
     params, poses = held_out_params(env, eval_cfg)
     return [{"targets": pose_summary(r, orientation, poses)}
             for r in _vmapped(env, eval_cfg, params, policy, n)]  # fmt: skip
@@ -138,8 +143,9 @@ def judge_real(meta: dict[str, Any], policy: Any, n: int, config: Any, orientati
     from mara_mjx.runtime import runs
 
     eval_cfg = EvalConfig(
-        episodes=config.draws, seed=config.eval_seed, tolerance_mm=0.0, rate_limit=config.rate_limit
-    )
+        episodes=config.draws, seed=config.eval_seed, tolerance_mm=0.0,
+        rate_limit=config.rate_limit, collision_guard_mm=config.collision_guard_mm,
+    )  # fmt: skip
     rows: list[dict[str, Any]] = [{"real": {}} for _ in range(n)]
     for v in config.velocities:
         env = runs.make_env(meta, driver="real", velocity=v, randomize=True)

@@ -20,10 +20,11 @@ target (rad) for motor1..motor6; the env clips it to the joint limits (`policy(o
 clip=True)` does the same here). The .onnx file: input "obs" (N, obs_size)
 float32, outputs "action" and "action_clipped" (N, 6) rad; a joint-space policy's graph is
 written node by node (`mara_mjx/deploy/onnx_policy.py`, needs onnx), a policy with IK rules
-(ik_prior, task_space_actions, ik_finish) is traced from the JAX policy by jax2onnx, all
-its rules in the graph and checked against JAX before it is written
+(ik_prior, task_space_actions, ik_finish, collision_guard_mm) is traced from the JAX
+policy by jax2onnx, all its rules in the graph and checked against JAX before it is written
 (`mara_mjx/deploy/onnx_graph.py`, needs the [export] extra; meta "rules_in_graph"). .npz
-refuses ik_prior and task_space_actions policies (numpy has no Jacobian).
+refuses ik_prior, task_space_actions and collision_guard_mm policies (numpy has no
+Jacobian and no contact distances).
 
 File layout (`np.load(path)`; no pickles):
     layer_<i>/kernel   (in, out) float32, i = 0 .. len(hidden_sizes)   y = x @ kernel + bias
@@ -126,14 +127,20 @@ def export_policy(
     arrays, meta = ckpt.load_checkpoint(source)
     policy = policy_io.policy_from_checkpoint(arrays, meta)
     config, ppo = policy.config.policy, policy.config.ppo
-    # options whose actions need the arm's Jacobian, which the numpy MLP does not have
-    options = {"ik_prior": config.ik_prior, "task_space_actions": config.task_space_actions}
+    # options whose actions need the arm's Jacobian or its contact distances, which the
+    # numpy MLP does not have
+    options = {
+        "ik_prior": config.ik_prior,
+        "task_space_actions": config.task_space_actions,
+        "collision_guard_mm": config.collision_guard_mm,
+    }
     jacobian = [(k, v) for k, v in options.items() if v]
     if jacobian and out_path.suffix == ".npz":
         option, value = jacobian[0]
         raise ExportError(
             f"{str(source)!r} was trained with {option}={value!r}, which needs the arm's "
-            "Jacobian (mara_mjx.envs.task_space); .npz export supports joint-space policies "
+            "Jacobian or contact distances (mara_mjx.envs.task_space, envs/clearance); .npz "
+            "export supports joint-space policies "
             "only. Export .onnx (its graph runs every rule; pip install 'mara_mjx[export]'), "
             "train with --preset default for a joint-space policy, or use "
             "mara_mjx.ppo.load_policy(checkpoint) in JAX"

@@ -180,8 +180,10 @@ def segment_segment_distance(p1, q1, p2, q2) -> jax.Array:
     (Ericson 5.1.9, with the degenerate cases clamped)."""
     eps = 1e-12
     d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a, e, f = jnp.dot(d1, d1), jnp.dot(d2, d2), jnp.dot(d2, r)
-    c, b = jnp.dot(d1, r), jnp.dot(d1, d2)
+    # sums of products, not jnp.dot: jax2onnx lowers a vector dot under vmap wrongly
+    # (the deployed collision guard, envs/clearance.py, is exported through here)
+    a, e, f = jnp.sum(d1 * d1), jnp.sum(d2 * d2), jnp.sum(d2 * r)
+    c, b = jnp.sum(d1 * r), jnp.sum(d1 * d2)
     denom = a * e - b * b
     s = jnp.where(denom > eps, jnp.clip((b * f - c * e) / jnp.maximum(denom, eps), 0.0, 1.0), 0.0)
     t = (b * s + f) / jnp.maximum(e, eps)

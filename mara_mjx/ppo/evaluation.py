@@ -144,6 +144,8 @@ def make_evaluate(
         max_step = (velocity * step_s)[..., None] if velocity.ndim else velocity * step_s
 
     def evaluate(policy: Policy) -> dict[str, jax.Array]:
+        if config.collision_guard_mm >= 0.0:
+            policy = with_collision_guard(policy, config.collision_guard_mm)
         if config.rate_limit:
             policy = rate_limited(policy, max_step, env.joint_lower, env.joint_upper)
         state = reset(keys, params)
@@ -170,6 +172,19 @@ def make_evaluate(
         return rec
 
     return jax.jit(evaluate)
+
+
+def with_collision_guard(policy: Any, mm: float) -> Any:
+    """`policy` (a checkpoint's Policy) with its deployed collision guard set to `mm`
+    (PolicyConfig.collision_guard_mm; 0: off); ValueError for a policy without a config
+    (an exported file's, a plain function)."""
+    config = getattr(policy, "config", None)
+    if config is None or not hasattr(policy, "replace"):
+        raise ValueError(
+            f"collision_guard_mm={mm} sets a checkpoint policy's deployed guard, but this "
+            "policy has no config (an exported file carries the guard it was exported with)"
+        )
+    return policy.replace(config=config.replace(collision_guard_mm=float(mm)))
 
 
 def evaluate(

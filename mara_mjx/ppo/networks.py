@@ -75,6 +75,7 @@ class ActorCritic(nn.Module):
     ik_orient_loose: bool = False
     ik_finish: float = 0.0
     ik_guard: bool = False
+    collision_guard: float = 0.0
 
     @nn.compact
     def __call__(
@@ -128,6 +129,10 @@ class ActorCritic(nn.Module):
                 delta = jnp.where(near, finish_step(q, e), delta)
             if self.max_joint_step > 0.0:  # |delta| < m per joint, smoothly (PolicyConfig)
                 delta = self.max_joint_step * jnp.tanh(delta / self.max_joint_step)
+            if self.collision_guard > 0.0:  # deployed only (PolicyConfig.collision_guard_mm)
+                from mara_mjx.envs.clearance import keep_clear
+
+                delta = keep_clear(q, delta, self.collision_guard)
             mean = q + delta
         value = MLP(self.hidden_sizes, 1, 1.0, name="critic")(obs)[..., 0]
         log_std = self.param(
@@ -199,7 +204,8 @@ def make_network(config: Any, action_size: int, training: bool = False) -> Actor
     checkpoints all build it here): the MLPs' shape from its `ppo` (PPOConfig), the
     parametrisation from its `policy` (PolicyConfig). `training`: the trainer's network,
     with the training-only rules (train_ik_gate_roll, train_ik_orient_loose) and without
-    the deployed-only ones (ik_finish, the guard of ik_orient_first's zone); policies run
+    the deployed-only ones (ik_finish, the guard of ik_orient_first's zone, the collision
+    guard); policies run
     the other way round. A PPOConfig alone has the default parametrisation."""
     from mara_mjx.ppo.config import as_train_config
 
@@ -225,6 +231,7 @@ def make_network(config: Any, action_size: int, training: bool = False) -> Actor
         training and policy.ik_orient_first and policy.train_ik_orient_loose,
         0.0 if training else policy.ik_finish,
         not training and policy.ik_orient_first,  # its deployed guard (stop_outside)
+        0.0 if training else policy.collision_guard_mm * 1e-3,  # m
     )
 
 

@@ -88,9 +88,15 @@ class EvalConfig(_ConfigMixin):
     starts from where they were commanded, not from the observed joints, so a lagging arm
     follows the direction only approximately. A deployment-side output stage of the
     policy, as a robot's trajectory scaling would be; the env is unchanged."""
+    collision_guard_mm: float = -1.0
+    """The evaluated policy's collision guard (PolicyConfig.collision_guard_mm, a
+    deployed-only rule, so the same trained parameters): -1 as the checkpoint was trained
+    (default), >= 0 replaces it (0: off), e.g. to judge existing checkpoints with it."""
 
     def __post_init__(self):
         _check_int("episodes", self.episodes, minimum=1)
         _check_int("seed", self.seed, minimum=0)
         _check_range("noise", self.noise, 0.0, 0.5)
         _check_range("tolerance_mm", self.tolerance_mm, 0.0, math.inf)
+        if self.collision_guard_mm != -1.0:
+            _check_range("collision_guard_mm", self.collision_guard_mm, 0.0, 100.0)

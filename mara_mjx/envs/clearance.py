@@ -1,0 +1,85 @@
+"""The deployed collision guard: no commanded posture closer to a contact than a margin.
+
+A deployed policy's joint targets q + dq are checked before they are sent: where the
+nominal arm at q + dq (clipped to the joint limits, as the env clips its targets) would
+come closer than `margin` to any listed contact pair (the arm's links, the gripper, the
+base and the table: the pairs the env's collision check reads, as signed distances of
+the lean pass, envs/lean.py), the step is shortened to alpha dq, alpha found by bisection
+along the step, so that the arm stops short of the contact and the policy chooses again
+from there (PolicyConfig.collision_guard_mm; benchmarks/NOTES.md section 38).
+
+    dq = keep_clear(q, dq, margin)          # (..., 6), (..., 6) -> (..., 6) rad
+
+The margin asked for is never more than the clearance the arm already has at q, so a
+posture that is already within the margin (a target near the table, sensor noise) may
+still move, as long as it does not move closer. The check is of the posture each step
+lands in, not of the path between: on the train driver that is exactly the env's
+collision check; on a servo-driven arm the steps are small (EvalConfig.rate_limit) and
+the margin covers the path between two checks. The nominal arm is the drawing's: a
+randomised arm differs from it by its joint zero offsets (milliradians), which the
+margin also covers.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mara_mjx.envs.lean import LeanArm
+
+KEEP_CLEAR_ITERS = 8
+"""Bisection halvings of keep_clear (the step is kept to 1/256 of its length)."""
+
+
+@functools.lru_cache(maxsize=1)
+def nominal_lean() -> LeanArm:
+    """The lean collision pass of the MARA model in the package's assets (built once)."""
+    from mara_mjx.envs.arm import load_model  # arm imports lean: no cycle at import time
+
+    return LeanArm.from_model(load_model())
+
+
+def clearance(q: jax.Array) -> jax.Array:
+    """q (..., 6) -> (...,) the smallest signed distance (m) of the listed contact pairs of
+    the nominal arm at q (negative: penetrating, which the env counts as a collision)."""
+    lean = nominal_lean()
+
+    def one(q1):
+        cc, cb = lean.distances(q1)
+        return jnp.minimum(jnp.min(cc), jnp.min(cb))
+
+    return jnp.vectorize(one, signature="(6)->()")(q)
+
+
+def keep_clear(
+    q: jax.Array, dq: jax.Array, margin: float, iters: int = KEEP_CLEAR_ITERS
+) -> jax.Array:
+    """dq (..., 6), shortened to alpha dq where the nominal arm at q + dq (clipped to the
+    joint limits) would come closer than min(margin, clearance(q)) to a contact (m); alpha
+    by `iters` halvings, the largest fraction found that keeps the clearance. Elsewhere
+    dq unchanged. Batch-first with the loop outermost and its values in the carry, as
+    task_space.stop_outside, so that jax2onnx exports it."""
+    from mara_mjx.envs.task_space import joint_ranges
+
+    lo6, hi6 = (np.asarray(x, np.float32) for x in joint_ranges())
+    step = dq  # the gradient flows through the step itself, not through alpha
+    q, dq = jax.lax.stop_gradient(q), jax.lax.stop_gradient(dq)
+    need = jnp.minimum(jnp.float32(margin), clearance(q))
+
+    def clear(alpha, q, dq, need):  # alpha (...,) -> (...,) bool
+        return clearance(jnp.clip(q + alpha[..., None] * dq, lo6, hi6)) >= need
+
+    def halve(_, carry):
+        lo, hi, q, dq, need = carry
+        mid = 0.5 * (lo + hi)
+        ok = clear(mid, q, dq, need)
+        return jnp.where(ok, mid, lo), jnp.where(ok, hi, mid), q, dq, need
+
+    ones = jnp.ones(q.shape[:-1], q.dtype)
+    blocked = ~clear(ones, q, dq, need)
+    lo = jax.lax.fori_loop(0, iters, halve, (jnp.zeros_like(ones), ones, q, dq, need))[0]
+    alpha = jnp.where(blocked, lo, 1.0)
+    return alpha[..., None] * step

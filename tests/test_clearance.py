@@ -1,0 +1,82 @@
+"""The deployed collision guard (mara_mjx/envs/clearance.py, PolicyConfig.collision_guard_mm):
+a step whose landing posture would touch is shortened to keep the margin, a clear step is
+left alone, a posture already inside the margin may still move, and the guard exists only
+in the deployed policy. The two steps are the ones MARACollisionOrient's seed 1010 took into
+the table (benchmarks/NOTES.md section 38)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_export_plots import make_run
+
+from mara_mjx.cli.export import ExportError, export_policy
+from mara_mjx.envs.clearance import clearance, keep_clear
+from mara_mjx.ppo.config import PRESETS, EvalConfig, TrainConfig
+from mara_mjx.ppo.networks import make_network
+from mara_mjx.ppo.parametrisation import PolicyConfig
+
+# observed joints, then the commanded ones, of seed 1010's two collisions 150 mm out
+Q = np.array([[1.909, -0.2626, 0.6585, -0.143, 2.0652, 0.0151],
+              [1.9327, -0.4802, 0.3966, -0.0321, 2.1456, 0.0737]], np.float32)  # fmt: skip
+A = np.array([[1.6084, -0.8043, 0.7576, -0.0803, 2.0316, 0.2648],
+              [1.7356, -0.9115, 0.7734, -0.1306, 2.0081, 0.2481]], np.float32)  # fmt: skip
+MARGIN = 0.005
+
+
+@pytest.fixture(scope="module")
+def guard():
+    return jax.jit(lambda q, dq: keep_clear(q, dq, MARGIN))
+
+
+def test_a_step_into_the_table_stops_short_keeping_the_margin(guard):
+    assert np.all(clearance(jnp.asarray(A)) < 0) and np.all(clearance(jnp.asarray(Q)) > MARGIN)
+    dq = np.asarray(guard(Q, A - Q))
+    alpha = dq / (A - Q)
+    assert np.allclose(alpha, alpha[:, :1], rtol=1e-5)  # the same direction, shorter
+    assert np.all((alpha[:, 0] > 0.5) & (alpha[:, 0] < 1.0))  # most of the way, not all
+    assert np.all(np.asarray(clearance(jnp.asarray(Q + dq))) >= MARGIN)
+
+
+def test_a_clear_step_is_unchanged_and_a_close_posture_may_still_move(guard):
+    half = 0.3 * (A - Q)  # the first part of the same steps: clear of everything
+    assert np.all(np.asarray(clearance(jnp.asarray(Q + half))) > MARGIN)
+    np.testing.assert_array_equal(np.asarray(guard(Q, half)), half)
+    # from a posture 1-4 mm from the table (inside the margin) the arm may move away or
+    # along, never closer than it is
+    dq = np.asarray(guard(Q, A - Q))
+    f = np.linspace(1.0, 1.2, 201)[:, None, None]  # a little past the guard's stop
+    c = np.asarray(clearance(jnp.asarray(Q + f * dq)))  # (201, 2)
+    first = np.argmax((c > 0) & (c < 0.5 * MARGIN), axis=0)
+    close = (Q + f[first, 0] * dq).astype(np.float32)
+    now = np.asarray(clearance(jnp.asarray(close)))
+    assert np.all((now > 0) & (now < MARGIN))
+    back = np.asarray(guard(close, Q - close))  # away from the table: allowed whole
+    np.testing.assert_array_equal(back, Q - close)
+    deeper = np.asarray(guard(close, A - close))
+    assert np.all(np.asarray(clearance(jnp.asarray(close + deeper))) >= now - 1e-6)
+
+
+def test_the_guard_is_deployed_only_and_checked():
+    config = PRESETS["orient_first"]
+    assert config.policy.collision_guard_mm == 5.0
+    assert make_network(config, 6, training=True).collision_guard == 0.0
+    assert make_network(config, 6).collision_guard == pytest.approx(0.005)
+    with pytest.raises(ValueError, match="collision_guard_mm=-1"):
+        PolicyConfig(relative_actions=True, collision_guard_mm=-1.0)
+    with pytest.raises(ValueError, match="needs relative_actions=true"):
+        PolicyConfig(collision_guard_mm=5.0)
+    with pytest.raises(ValueError, match="collision_guard_mm=200"):
+        EvalConfig(collision_guard_mm=200.0)
+    assert TrainConfig.of(relative_actions=True, collision_guard_mm=3.0).flat()[
+        "collision_guard_mm"
+    ] == 3.0
+
+
+def test_npz_export_refuses_a_guarded_policy(tmp_path):
+    run = make_run(tmp_path / "run", "MARACollision", True, relative=True, collision_guard_mm=5.0)
+    with pytest.raises(ExportError, match="collision_guard_mm=5.0.*contact distances"):
+        export_policy(run, tmp_path / "policy.npz")
+    assert not (tmp_path / "policy.npz").exists()
