@@ -70,9 +70,10 @@ def test_the_guard_is_deployed_only_and_checked():
         PolicyConfig(collision_guard_mm=5.0)
     with pytest.raises(ValueError, match="collision_guard_mm=200"):
         EvalConfig(collision_guard_mm=200.0)
-    assert TrainConfig.of(relative_actions=True, collision_guard_mm=3.0).flat()[
-        "collision_guard_mm"
-    ] == 3.0
+    assert (
+        TrainConfig.of(relative_actions=True, collision_guard_mm=3.0).flat()["collision_guard_mm"]
+        == 3.0
+    )
 
 
 def test_npz_export_refuses_a_guarded_policy(tmp_path):
