@@ -138,12 +138,3 @@ def cli_env(tmp_path_factory) -> dict[str, str]:
         "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
         "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0",
     }
-
-
-@pytest.fixture(scope="session")
-def users_env(cli_env) -> dict[str, str]:
-    """cli_env without the suite's LLVM O0 flags: programs compiled as users compile them.
-    The --seeds tests run in it (their deadlocks, NOTES sections 15 and 28, were batched
-    LAPACK calls: see SEEDS). Every process whose results these tests compare runs in it,
-    so the comparisons stay like for like."""
-    return {**cli_env, "XLA_FLAGS": cli_env["XLA_FLAGS"].replace(FAST_COMPILE_FLAGS, "")}

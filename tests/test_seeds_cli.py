@@ -21,24 +21,28 @@ from mara_mjx.ppo import checkpoint as ckpt
 # sections 15 and 28; they ran the `default` preset for that): batched LAPACK calls (the
 # IK step's LU, the vmapped orthogonal init's QR) blocking every thread of XLA's CPU
 # pool. Since NOTES section 30 a CPU program makes none
-# (test_ik_finish.py::test_cpu_training_programs_hold_no_batched_lapack_call...).
+# (test_ik_finish.py::test_cpu_training_programs_hold_no_batched_lapack_call...), so these
+# processes compile at the suite's LLVM O0 flags (cli_env) like every other CLI test (they
+# ran without them, as users compile, while the hang was blamed on O0: 2-3x the compile).
 SEEDS = [*TINY, "--seeds", "2", "--tensorboard", "false"]
 
 
 @pytest.fixture(scope="session")
-def seeds_run(users_env, tmp_path_factory):
+def seeds_run(cli_env, tmp_path_factory):
     """(run folder, completed process) of the tiny two-seed run."""
     out = tmp_path_factory.mktemp("seeds") / "run"
-    proc = run_module(users_env, "mara_mjx.train", *SEEDS, "--out", str(out))
+    proc = run_module(cli_env, "mara_mjx.train", *SEEDS, "--out", str(out))
     assert proc.returncode == 0, proc.stderr[-4000:]
     return out, proc
 
 
 @pytest.fixture(scope="session")
-def single_run(users_env, tmp_path_factory):
-    """TINY, seed 0, compiled like seeds_run, for their comparison."""
+def single_run(cli_env, tmp_path_factory):
+    """TINY, seed 0, compiled like seeds_run, for their comparison (of the checkpoints:
+    no final evaluation, plots or TensorBoard, which only cost compiles and imports)."""
     out = tmp_path_factory.mktemp("single") / "run"
-    proc = run_module(users_env, "mara_mjx.train", *TINY, "--out", str(out))
+    quiet = ["--evaluate", "false", "--plots", "false", "--tensorboard", "false"]
+    proc = run_module(cli_env, "mara_mjx.train", *TINY, *quiet, "--out", str(out))
     assert proc.returncode == 0, proc.stderr[-4000:]
     return out, proc
 
@@ -55,7 +59,7 @@ def test_a_seeds_run_is_read_for_its_driver(seeds_run):
     assert uses_real_driver(argparse.Namespace(), str(out / "no_such_run")) is True
 
 
-def test_robustness_study_judges_a_seeds_run(seeds_run, users_env, tmp_path):
+def test_robustness_study_judges_a_seeds_run(seeds_run, cli_env, tmp_path):
     """`python -m mara_mjx.benchmark robustness` on the tiny two-seed run (its training
     reused through the study's work folder, as a rerun with the same --work_dir finds
     it): every seed judged (the paper's evaluation and the hold), the summary across
@@ -73,7 +77,7 @@ def test_robustness_study_judges_a_seeds_run(seeds_run, users_env, tmp_path):
     shutil.copytree(out, job.out)
     timing = {"command_s": 1.0, "launch_offset_s": 0.0}
     job.log.with_suffix(".done").write_text(json.dumps({"command": job.command, "timing": timing}))
-    proc = run_module(users_env, "mara_mjx.benchmark", "robustness", *flags)
+    proc = run_module(cli_env, "mara_mjx.benchmark", "robustness", *flags)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "reusing the finished run of python -m mara_mjx.train --env MARA --seed 0" in proc.stdout
     data = json.loads((results / "robustness.json").read_text())
@@ -135,10 +139,10 @@ def test_each_seed_of_a_seeds_run_is_the_single_run_of_that_seed(single_run, see
     assert table.split("\n| ")[0] in proc.stdout  # printed at the end
 
 
-def test_evaluate_cli_on_a_seeds_run(seeds_run, users_env, tmp_path):
+def test_evaluate_cli_on_a_seeds_run(seeds_run, cli_env, tmp_path):
     out, _ = seeds_run
     report_path = tmp_path / "seeds-eval.json"
-    proc = run_module(users_env, "mara_mjx.evaluate", str(out), "--json", str(report_path))
+    proc = run_module(cli_env, "mara_mjx.evaluate", str(out), "--json", str(report_path))
     assert proc.returncode == 0, proc.stderr[-4000:]
     assert "| mean |" in proc.stdout and "| worst |" in proc.stdout
     report = json.loads(report_path.read_text())
@@ -150,13 +154,13 @@ def test_evaluate_cli_on_a_seeds_run(seeds_run, users_env, tmp_path):
     assert report_path.with_suffix(".md").read_text().startswith("MARA, 2 seeds")
 
 
-def test_a_seeds_run_resumes_from_its_newest_common_checkpoint(seeds_run, users_env, tmp_path):
+def test_a_seeds_run_resumes_from_its_newest_common_checkpoint(seeds_run, cli_env, tmp_path):
     out, _ = seeds_run
     copy = tmp_path / "resumed"
     shutil.copytree(out, copy)
     (copy / "seed_1" / CKPT2).unlink()  # seed 0 has update 2, seed 1 only update 1
     quiet = ["--progress", "false", "--evaluate", "false", "--plots", "false"]
-    proc = run_module(users_env, "mara_mjx.train", "--resume", str(copy), *quiet)
+    proc = run_module(cli_env, "mara_mjx.train", "--resume", str(copy), *quiet)
     assert proc.returncode == 0, proc.stderr[-4000:]
     for s in (0, 1):
         original, _ = ckpt.load_checkpoint(out / f"seed_{s}" / CKPT2)
