@@ -81,3 +81,28 @@ def test_npz_export_refuses_a_guarded_policy(tmp_path):
     with pytest.raises(ExportError, match="collision_guard_mm=5.0.*contact distances"):
         export_policy(run, tmp_path / "policy.npz")
     assert not (tmp_path / "policy.npz").exists()
+
+
+def test_the_training_clearance_penalty_charges_postures_inside_the_margin():
+    import types
+
+    import mara_mjx
+    from mara_mjx.ppo.curriculum import CurriculumConfig, make_schedule, resolve
+
+    env = mara_mjx.make("MARACollision")
+    config = CurriculumConfig(train_clearance_penalty=2.0, train_clearance_mm=10.0)
+    schedule = make_schedule(config, env, mara_mjx.BatchedEnv(env, 3), 10)
+    dq = np.asarray(jax.jit(lambda q, d: keep_clear(q, d, 0.003))(Q, A - Q))
+    near = Q[:1] + dq[:1]  # 3-4 mm from the table
+    c = float(clearance(jnp.asarray(near))[0])
+    assert 0.003 <= c < 0.010
+    q = np.concatenate([Q[:1], near, np.zeros((1, 6), np.float32)])  # clear, near, upright
+    obs = np.concatenate([q, np.zeros((3, 6), np.float32)], 1)
+    traj = types.SimpleNamespace(obs=jnp.asarray(obs), metrics={})
+    reward = jnp.zeros(3)
+    shaped = np.asarray(schedule.shaped_reward(reward, traj, None, jnp.asarray(0)))
+    np.testing.assert_allclose(shaped, [0.0, -2.0 * (1.0 - c / 0.010), 0.0], atol=1e-5)
+    with pytest.raises(ValueError, match="train_clearance_mm=0"):
+        CurriculumConfig(train_clearance_penalty=1.0, train_clearance_mm=0.0)
+    with pytest.raises(ValueError, match="MARA arm"):
+        resolve(config, types.SimpleNamespace(observation_layout=[], action_size=2))

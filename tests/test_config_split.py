@@ -94,7 +94,11 @@ def test_sections_hold_every_field_once_and_ppo_config_is_the_algorithm():
 
 # Fields added after the split: (the default every pre-split config loads with, the
 # presets that set another value and that value).
-ADDED_SINCE_SPLIT = {"collision_guard_mm": (0.0, {"orient_first": 5.0})}
+ADDED_SINCE_SPLIT = {
+    "collision_guard_mm": (0.0, {"orient_first": 5.0}),
+    "train_clearance_penalty": (0.0, {}),
+    "train_clearance_mm": (10.0, {}),
+}
 
 
 def test_every_preset_flattens_to_its_presplit_values():

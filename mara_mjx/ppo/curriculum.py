@@ -96,6 +96,18 @@ class CurriculumConfig(_ConfigMixin):
     0.5))^eta, the env's delta and eta) from every colliding step's reward, moving linearly
     to 0 by `train_reward_until` of the updates; on top of the env's own penalty where the
     task has one. 0 is off."""
+    train_clearance_penalty: float = 0.0
+    """Training only, for the whole training: subtract w relu(1 - c / m) from every step's
+    reward (w this value, in the env's reward units; c the clearance of the observed
+    posture at the step's start, the smallest signed distance of the env's contact pairs
+    on the nominal arm, envs/clearance.clearance; m = `train_clearance_mm`): 0 beyond the
+    margin, w at contact. The train driver checks contact exactly, so a path 0.1 mm above
+    the table is as good as one 5 cm above it; a servo-driven arm then touches on a
+    millimetre of tracking error (benchmarks/NOTES.md section 38: the real-driver
+    collisions of `default --randomize`). The judged env is unchanged. MARA arms (q first
+    in the observation, 6 joints). 0: off. Not yet measured."""
+    train_clearance_mm: float = 10.0
+    """mm: the margin m of `train_clearance_penalty`."""
     bound_coef: float = 0.0
     """Weight of a loss that keeps the Gaussian mean inside the env's joint box:
     bound_coef * E[sum_j relu(mean_j - upper_j)^2 + relu(lower_j - mean_j)^2] (rad^2).
@@ -136,6 +148,8 @@ class CurriculumConfig(_ConfigMixin):
         _check_range("train_collision_penalty", self.train_collision_penalty, 0.0, math.inf)
         _check_range("orientation_bonus", self.orientation_bonus, 0.0, math.inf)
         _check_range("train_limit_penalty", self.train_limit_penalty, 0.0, math.inf)
+        _check_range("train_clearance_penalty", self.train_clearance_penalty, 0.0, math.inf)
+        _check_range("train_clearance_mm", self.train_clearance_mm, 0.0, 100.0, low_open=True)
         _check_range("train_limit_soft", self.train_limit_soft, 0.0, 0.99)
         _check_range(
             "orientation_bonus_angle", self.orientation_bonus_angle, 0.0, math.pi, low_open=True
@@ -182,7 +196,8 @@ def resolve(curriculum: CurriculumConfig, env: Any) -> CurriculumConfig:
     """`curriculum` for `env`: `train_reward` and `train_collision_penalty` cleared for an
     env whose params have no `reward` (a user's own Env: the preset's defaults cannot
     apply to it, and the saved config says so), `train_reset_noise` for one without
-    `reset_noise`, `orientation_bonus` for one without quat_err in its observation."""
+    `reset_noise`, `orientation_bonus` for one without quat_err in its observation;
+    ValueError for train_clearance_penalty on an env that is not a MARA arm."""
     params = getattr(env, "default_params", None)
     layout = getattr(env, "observation_layout", None) or []
     resolved = curriculum
@@ -193,6 +208,14 @@ def resolve(curriculum: CurriculumConfig, env: Any) -> CurriculumConfig:
     has_quat = any(part.get("name") == "quat_err" for part in layout)
     if not has_quat and resolved.orientation_bonus > 0.0:  # no orientation in the task
         resolved = resolved.replace(orientation_bonus=0.0)
+    where = {part.get("name"): int(part["start"]) for part in layout}
+    arm = where.get("q") == 0 and getattr(env, "action_size", None) == 6
+    if resolved.train_clearance_penalty > 0.0 and not arm:
+        raise ValueError(
+            f"train_clearance_penalty={resolved.train_clearance_penalty} reads the MARA "
+            "arm's joints (q at 0 of the observation, 6 joint actions); this env has "
+            "neither; set train_clearance_penalty=0"
+        )
     return resolved
 
 
@@ -201,6 +224,14 @@ def limit_penalty(q: jax.Array, lower: jax.Array, upper: jax.Array, soft: float)
     joint at its limit (CurriculumConfig.train_limit_penalty); q (..., J)."""
     centre, half = (upper + lower) / 2, (upper - lower) / 2
     return jnp.sum(jax.nn.relu(jnp.abs(q - centre) - soft * half) / ((1 - soft) * half), -1)
+
+
+def clearance_penalty(q: jax.Array, margin: float) -> jax.Array:
+    """relu(1 - clearance(q) / margin): 0 beyond `margin` (m) from every contact of the
+    nominal arm, 1 at contact (CurriculumConfig.train_clearance_penalty); q (..., 6)."""
+    from mara_mjx.envs.clearance import clearance
+
+    return jax.nn.relu(1.0 - clearance(q) / margin)
 
 
 def orientation_bonus(metrics: dict[str, jax.Array], config: CurriculumConfig) -> jax.Array:
@@ -333,6 +364,11 @@ def make_schedule(config: CurriculumConfig, env: Any, benv: Any, num_updates: in
             q = traj.obs[..., : lower.shape[-1]]
             reward = reward - fade * config.train_limit_penalty * limit_penalty(
                 q, lower, upper, config.train_limit_soft
+            )
+        if config.train_clearance_penalty > 0.0:
+            q = traj.obs[..., : lower.shape[-1]]
+            reward = reward - config.train_clearance_penalty * clearance_penalty(
+                q, config.train_clearance_mm * 1e-3
             )
         return reward
 
