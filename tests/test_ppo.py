@@ -829,11 +829,13 @@ def test_pose_step_wrap_takes_the_last_joint_the_long_way_past_its_limit():
         pos, quat = chain.tcp(q)
         return pos - tpos, quat_mul(quat, quat_conj(tquat))
 
-    def run(q, wrap, n=80):
-        for _ in range(n):
+    @functools.partial(jax.jit, static_argnums=1)
+    def run(q, wrap, n=80):  # n closed-loop steps, one compiled loop
+        def body(_, q):
             e, r = error(q)
-            q = jnp.clip(q + pose_step(q, e, r, wrap), lo6, hi6)
-        return q
+            return jnp.clip(q + pose_step(q, e, r, wrap), lo6, hi6)
+
+        return jax.lax.fori_loop(0, n, body, q)
 
     # no limit in the way: the same step with and without wrap
     near = goal.at[5].add(-0.3)
@@ -846,15 +848,20 @@ def test_pose_step_wrap_takes_the_last_joint_the_long_way_past_its_limit():
     plain, wrapped = pose_step(blocked, e, r, False), pose_step(blocked, e, r, True)
     assert float(plain[5]) < 0.0 < float(wrapped[5])
     q_plain, q_wrap = run(blocked, False), run(blocked, True)
+
     # on the way round the other joints hold the TCP's position and the tool axis
+    @jax.jit
+    def wrapping_step(q):  # (next q, still wrapping, |e| after the step)
+        dq, wrapping = pose_step_wrapping(q, *error(q), True)
+        q = jnp.clip(q + dq, lo6, hi6)
+        return q, wrapping, jnp.linalg.norm(error(q)[0])
+
     q, worst = blocked.at[:5].add(0.002), 0.0
     for _ in range(30):
-        e, r = error(q)
-        dq, wrapping = pose_step_wrapping(q, e, r, True)
+        after, wrapping, e_after = wrapping_step(q)
         if not bool(wrapping):
             break
-        q = jnp.clip(q + dq, lo6, hi6)
-        worst = max(worst, float(jnp.linalg.norm(error(q)[0])))
+        q, worst = after, max(worst, float(e_after))
     assert 0.5 < float(q[5] - blocked[5]) and worst < 2e-3
     assert float(jnp.linalg.norm(rotation_vector(error(q_plain)[1]))) > 0.05
     assert float(jnp.linalg.norm(rotation_vector(error(q_wrap)[1]))) < 1e-3
