@@ -42,6 +42,9 @@ def test_orient_task_default_trains_and_its_checkpoint_runs_without_the_training
     out = tmp_path / "run"
     tiny = [*TINY[2:], "--env", "MARAOrient", "--tensorboard", "false"]
     tiny += ["--probe_reach_steps", "5"]  # the Orient tasks' time to accuracy
+    # `evaluate` below evaluates the checkpoint: the run's own final evaluation (another
+    # program to compile) and its plots are not under test here
+    tiny += ["--evaluate", "false", "--plots", "false"]
     proc = run_module(cli_env, "mara_mjx.train", *tiny, "--out", str(out))
     assert proc.returncode == 0, proc.stderr[-4000:]
     saved = json.loads((out / "config.json").read_text())
