@@ -1,7 +1,7 @@
 """Several seeds through the CLIs, as a user runs them (subprocesses, tiny settings): a
 --seeds run is its seeds' single runs, evaluates, resumes and feeds the robustness study.
-Split from test_train_cli.py (and the population and Orient-default runs from this file,
-tests/test_preset_cli.py) so that the suite's workers share the subprocess trainings."""
+Split from test_train_cli.py (which trains the population and Orient-default runs) so that
+the suite's workers share the subprocess trainings."""
 
 from __future__ import annotations
 
