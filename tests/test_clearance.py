@@ -24,6 +24,9 @@ Q = np.array([[1.909, -0.2626, 0.6585, -0.143, 2.0652, 0.0151],
 A = np.array([[1.6084, -0.8043, 0.7576, -0.0803, 2.0316, 0.2648],
               [1.7356, -0.9115, 0.7734, -0.1306, 2.0081, 0.2481]], np.float32)  # fmt: skip
 MARGIN = 0.005
+# a jump whose two ends are clear and whose straight line (its midpoint) is in the table
+SWEEP = np.array([[1.899, -1.2646, -1.8038, -1.065, -2.4605, -2.9596],
+                  [1.0918, -1.7755, -0.8027, -0.4672, -2.56, -1.5814]], np.float32)  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -98,10 +101,24 @@ def test_the_training_clearance_penalty_charges_postures_inside_the_margin():
     assert 0.003 <= c < 0.010
     q = np.concatenate([Q[:1], near, np.zeros((1, 6), np.float32)])  # clear, near, upright
     obs = np.concatenate([q, np.zeros((3, 6), np.float32)], 1)
-    traj = types.SimpleNamespace(obs=jnp.asarray(obs), metrics={})
+    traj = types.SimpleNamespace(obs=jnp.asarray(obs), final_obs=jnp.asarray(obs), metrics={})
     reward = jnp.zeros(3)
     shaped = np.asarray(schedule.shaped_reward(reward, traj, None, jnp.asarray(0)))
     np.testing.assert_allclose(shaped, [0.0, -2.0 * (1.0 - c / 0.010), 0.0], atol=1e-5)
+    # a jump between two postures 69 and 47 mm clear whose straight line passes 7.5 mm
+    # through the table: charged by the points on the way, not by its ends
+    obs = np.concatenate([SWEEP[:1], np.zeros((1, 6), np.float32)], 1)
+    landed = np.concatenate([SWEEP[1:], np.zeros((1, 6), np.float32)], 1)
+    ends = jnp.asarray(SWEEP)
+    assert np.all(np.asarray(clearance(ends)) > 0.04) and float(clearance(ends.mean(0))) < 0
+    traj = types.SimpleNamespace(obs=jnp.asarray(obs), final_obs=jnp.asarray(landed), metrics={})
+    for points, charged in ((1, False), (4, True)):
+        config = config.replace(train_clearance_points=points)
+        schedule = make_schedule(config, env, mara_mjx.BatchedEnv(env, 1), 10)
+        shaped = float(schedule.shaped_reward(jnp.zeros(1), traj, None, jnp.asarray(0))[0])
+        assert (shaped < -2.0) if charged else (shaped == 0.0), (points, shaped)
+    with pytest.raises(ValueError, match="train_clearance_points"):
+        CurriculumConfig(train_clearance_penalty=1.0, train_clearance_points=0)
     with pytest.raises(ValueError, match="train_clearance_mm=0"):
         CurriculumConfig(train_clearance_penalty=1.0, train_clearance_mm=0.0)
     with pytest.raises(ValueError, match="MARA arm"):

@@ -98,16 +98,21 @@ class CurriculumConfig(_ConfigMixin):
     task has one. 0 is off."""
     train_clearance_penalty: float = 0.0
     """Training only, for the whole training: subtract w relu(1 - c / m) from every step's
-    reward (w this value, in the env's reward units; c the clearance of the observed
-    posture at the step's start, the smallest signed distance of the env's contact pairs
-    on the nominal arm, envs/clearance.clearance; m = `train_clearance_mm`): 0 beyond the
-    margin, w at contact. The train driver checks contact exactly, so a path 0.1 mm above
-    the table is as good as one 5 cm above it; a servo-driven arm then touches on a
-    millimetre of tracking error (benchmarks/NOTES.md section 38: the real-driver
+    reward (w this value, in the env's reward units; m = `train_clearance_mm`; c the
+    smallest clearance on the way the step moves the arm: the smallest signed distance of
+    the env's contact pairs on the nominal arm, envs/clearance.clearance, at
+    `train_clearance_points` evenly spaced postures on the straight joint-space line from
+    the observed posture to the one the step lands in, the landing included): 0 beyond the
+    margin, w at contact. The train driver checks contact exactly and only where a step
+    lands, so a path 0.1 mm above the table, or one whose jump sweeps through it, is as
+    good as one 5 cm above it; a servo-driven arm moves along that line and touches on a
+    millimetre of tracking error (benchmarks/NOTES.md sections 38-39: the real-driver
     collisions of `default --randomize`). The judged env is unchanged. MARA arms (q first
-    in the observation, 6 joints). 0: off. Not yet measured."""
+    in the observation, 6 joints). 0: off."""
     train_clearance_mm: float = 10.0
     """mm: the margin m of `train_clearance_penalty`."""
+    train_clearance_points: int = 4
+    """Postures checked per step by `train_clearance_penalty` (1: the landing only)."""
     bound_coef: float = 0.0
     """Weight of a loss that keeps the Gaussian mean inside the env's joint box:
     bound_coef * E[sum_j relu(mean_j - upper_j)^2 + relu(lower_j - mean_j)^2] (rad^2).
@@ -150,6 +155,7 @@ class CurriculumConfig(_ConfigMixin):
         _check_range("train_limit_penalty", self.train_limit_penalty, 0.0, math.inf)
         _check_range("train_clearance_penalty", self.train_clearance_penalty, 0.0, math.inf)
         _check_range("train_clearance_mm", self.train_clearance_mm, 0.0, 100.0, low_open=True)
+        _check_int("train_clearance_points", self.train_clearance_points, minimum=1)
         _check_range("train_limit_soft", self.train_limit_soft, 0.0, 0.99)
         _check_range(
             "orientation_bonus_angle", self.orientation_bonus_angle, 0.0, math.pi, low_open=True
@@ -226,12 +232,21 @@ def limit_penalty(q: jax.Array, lower: jax.Array, upper: jax.Array, soft: float)
     return jnp.sum(jax.nn.relu(jnp.abs(q - centre) - soft * half) / ((1 - soft) * half), -1)
 
 
-def clearance_penalty(q: jax.Array, margin: float) -> jax.Array:
-    """relu(1 - clearance(q) / margin): 0 beyond `margin` (m) from every contact of the
-    nominal arm, 1 at contact (CurriculumConfig.train_clearance_penalty); q (..., 6)."""
+def clearance_penalty(
+    q: jax.Array, margin: float, q_next: jax.Array | None = None, points: int = 1
+) -> jax.Array:
+    """relu(1 - c / margin): 0 beyond `margin` (m) from every contact of the nominal arm, 1
+    at contact (CurriculumConfig.train_clearance_penalty); q (..., 6). c is the clearance
+    at q, or, with `q_next`, the smallest at `points` evenly spaced postures of the line
+    from q to q_next (q_next included, q not)."""
     from mara_mjx.envs.clearance import clearance
 
-    return jax.nn.relu(1.0 - clearance(q) / margin)
+    if q_next is None:
+        c = clearance(q)
+    else:
+        t = jnp.arange(1, points + 1, dtype=q.dtype) / points
+        c = jnp.min(clearance(q[..., None, :] + t[:, None] * (q_next - q)[..., None, :]), -1)
+    return jax.nn.relu(1.0 - c / margin)
 
 
 def orientation_bonus(metrics: dict[str, jax.Array], config: CurriculumConfig) -> jax.Array:
@@ -367,8 +382,9 @@ def make_schedule(config: CurriculumConfig, env: Any, benv: Any, num_updates: in
             )
         if config.train_clearance_penalty > 0.0:
             q = traj.obs[..., : lower.shape[-1]]
+            q_next = traj.final_obs[..., : lower.shape[-1]]  # the landing, before any reset
             reward = reward - config.train_clearance_penalty * clearance_penalty(
-                q, config.train_clearance_mm * 1e-3
+                q, config.train_clearance_mm * 1e-3, q_next, config.train_clearance_points
             )
         return reward
 
