@@ -113,7 +113,7 @@ def test_the_training_clearance_penalty_charges_postures_inside_the_margin():
     assert np.all(np.asarray(clearance(ends)) > 0.04) and float(clearance(ends.mean(0))) < 0
     traj = types.SimpleNamespace(obs=jnp.asarray(obs), final_obs=jnp.asarray(landed), metrics={})
     for points, charged in ((1, False), (4, True)):
-        config = config.replace(train_clearance_points=points)
+        config = config.replace(train_clearance_points=points, train_clearance_path="line")
         schedule = make_schedule(config, env, mara_mjx.BatchedEnv(env, 1), 10)
         shaped = float(schedule.shaped_reward(jnp.zeros(1), traj, None, jnp.asarray(0))[0])
         assert (shaped < -2.0) if charged else (shaped == 0.0), (points, shaped)

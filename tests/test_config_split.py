@@ -98,7 +98,8 @@ ADDED_SINCE_SPLIT = {
     "collision_guard_mm": (0.0, {"orient_first": 5.0}),
     "train_clearance_penalty": (0.0, {}),
     "train_clearance_mm": (10.0, {}),
-    "train_clearance_points": (4, {}),
+    "train_clearance_points": (8, {}),
+    "train_clearance_path": ("servo", {}),
 }
 
 

@@ -101,8 +101,8 @@ class CurriculumConfig(_ConfigMixin):
     reward (w this value, in the env's reward units; m = `train_clearance_mm`; c the
     smallest clearance on the way the step moves the arm: the smallest signed distance of
     the env's contact pairs on the nominal arm, envs/clearance.clearance, at
-    `train_clearance_points` evenly spaced postures on the straight joint-space line from
-    the observed posture to the one the step lands in, the landing included): 0 beyond the
+    `train_clearance_points` evenly spaced postures on the way (`train_clearance_path`)
+    from the observed posture to the one the step lands in, the landing included): 0 beyond the
     margin, w at contact. The train driver checks contact exactly and only where a step
     lands, so a path 0.1 mm above the table, or one whose jump sweeps through it, is as
     good as one 5 cm above it; a servo-driven arm moves along that line and touches on a
@@ -111,8 +111,14 @@ class CurriculumConfig(_ConfigMixin):
     in the observation, 6 joints). 0: off."""
     train_clearance_mm: float = 10.0
     """mm: the margin m of `train_clearance_penalty`."""
-    train_clearance_points: int = 4
+    train_clearance_points: int = 8
     """Postures checked per step by `train_clearance_penalty` (1: the landing only)."""
+    train_clearance_path: str = "servo"
+    """The way between the observed posture and the landing that `train_clearance_penalty`
+    checks: 'servo', the real driver's (every joint at the same speed until it arrives,
+    spec section 5, and the deployed rate limit's: q + clip(dq, -s, s) for s up to
+    max |dq|), or 'line', the straight joint-space line (a synchronised trajectory
+    controller's)."""
     bound_coef: float = 0.0
     """Weight of a loss that keeps the Gaussian mean inside the env's joint box:
     bound_coef * E[sum_j relu(mean_j - upper_j)^2 + relu(lower_j - mean_j)^2] (rad^2).
@@ -156,6 +162,10 @@ class CurriculumConfig(_ConfigMixin):
         _check_range("train_clearance_penalty", self.train_clearance_penalty, 0.0, math.inf)
         _check_range("train_clearance_mm", self.train_clearance_mm, 0.0, 100.0, low_open=True)
         _check_int("train_clearance_points", self.train_clearance_points, minimum=1)
+        if self.train_clearance_path not in ("servo", "line"):
+            raise ValueError(
+                f"train_clearance_path={self.train_clearance_path!r}: choose 'servo' or 'line'"
+            )
         _check_range("train_limit_soft", self.train_limit_soft, 0.0, 0.99)
         _check_range(
             "orientation_bonus_angle", self.orientation_bonus_angle, 0.0, math.pi, low_open=True
@@ -233,19 +243,30 @@ def limit_penalty(q: jax.Array, lower: jax.Array, upper: jax.Array, soft: float)
 
 
 def clearance_penalty(
-    q: jax.Array, margin: float, q_next: jax.Array | None = None, points: int = 1
+    q: jax.Array,
+    margin: float,
+    q_next: jax.Array | None = None,
+    points: int = 1,
+    path: str = "servo",
 ) -> jax.Array:
     """relu(1 - c / margin): 0 beyond `margin` (m) from every contact of the nominal arm, 1
     at contact (CurriculumConfig.train_clearance_penalty); q (..., 6). c is the clearance
-    at q, or, with `q_next`, the smallest at `points` evenly spaced postures of the line
-    from q to q_next (q_next included, q not)."""
+    at q, or, with `q_next`, the smallest at `points` evenly spaced postures of the way
+    from q to q_next (q_next included, q not): 'servo', q + clip(dq, -s, s) for s up to
+    max |dq| (each joint at one speed until it arrives), or 'line', q + t dq."""
     from mara_mjx.envs.clearance import clearance
 
     if q_next is None:
         c = clearance(q)
     else:
-        t = jnp.arange(1, points + 1, dtype=q.dtype) / points
-        c = jnp.min(clearance(q[..., None, :] + t[:, None] * (q_next - q)[..., None, :]), -1)
+        dq = (q_next - q)[..., None, :]
+        t = (jnp.arange(1, points + 1, dtype=q.dtype) / points)[:, None]  # (points, 1)
+        if path == "servo":
+            s = t * jnp.max(jnp.abs(dq), -1, keepdims=True)
+            way = jnp.clip(dq, -s, s)
+        else:
+            way = t * dq
+        c = jnp.min(clearance(q[..., None, :] + way), -1)
     return jax.nn.relu(1.0 - c / margin)
 
 
@@ -384,7 +405,11 @@ def make_schedule(config: CurriculumConfig, env: Any, benv: Any, num_updates: in
             q = traj.obs[..., : lower.shape[-1]]
             q_next = traj.final_obs[..., : lower.shape[-1]]  # the landing, before any reset
             reward = reward - config.train_clearance_penalty * clearance_penalty(
-                q, config.train_clearance_mm * 1e-3, q_next, config.train_clearance_points
+                q,
+                config.train_clearance_mm * 1e-3,
+                q_next,
+                config.train_clearance_points,
+                config.train_clearance_path,
             )
         return reward
 
