@@ -123,3 +123,26 @@ def test_the_training_clearance_penalty_charges_postures_inside_the_margin():
         CurriculumConfig(train_clearance_penalty=1.0, train_clearance_mm=0.0)
     with pytest.raises(ValueError, match="MARA arm"):
         resolve(config, types.SimpleNamespace(observation_layout=[], action_size=2))
+
+
+def test_capped_envs_move_at_a_servos_pace_and_the_others_jump():
+    """CurriculumConfig.train_capped_fraction: the last half of the rollout's envs move
+    each joint at most train_capped_step per step; the first half jump as the train driver
+    does (an initial policy's samples move joints by tenths of a radian)."""
+    import mara_mjx
+    from mara_mjx.ppo import make_train
+
+    env = mara_mjx.make("MARACollision")
+    config = PRESETS["default"].replace(
+        num_envs=4, num_steps=3, num_minibatches=1, update_epochs=1, total_timesteps=4 * 3,
+        train_capped_fraction=0.5, train_capped_step=0.02,
+    )  # fmt: skip
+    trainer = make_train(env, config, updates_per_call=1, devices=1)
+    init = trainer.init(jax.random.key(0))
+    q0 = np.asarray(init.env_state.env_state.q)
+    state, _ = trainer.run(init, 1)
+    moved = np.abs(np.asarray(state.env_state.env_state.q) - q0).max(-1)  # 3 steps
+    assert np.all(moved[2:] <= 3 * 0.02 + 1e-3), moved  # offsets/noise: none without randomize
+    assert np.all(moved[:2] > 0.1), moved
+    with pytest.raises(ValueError, match="train_capped_fraction"):
+        TrainConfig.of(train_capped_fraction=1.5)

@@ -100,6 +100,8 @@ ADDED_SINCE_SPLIT = {
     "train_clearance_mm": (10.0, {}),
     "train_clearance_points": (8, {}),
     "train_clearance_path": ("servo", {}),
+    "train_capped_fraction": (0.0, {}),
+    "train_capped_step": (0.025, {}),
 }
 
 

@@ -119,6 +119,17 @@ class CurriculumConfig(_ConfigMixin):
     spec section 5, and the deployed rate limit's: q + clip(dq, -s, s) for s up to
     max |dq|), or 'line', the straight joint-space line (a synchronised trajectory
     controller's)."""
+    train_capped_fraction: float = 0.0
+    """Training only: this fraction of the rollout's envs (the last ones) move each joint at
+    most `train_capped_step` rad per step toward the sampled target, the way a servo
+    moves (q + clip(a - q, -c, c) of the observed joints), instead of the train driver's
+    jump; the others jump as before. A policy trained on jumps alone never sees the
+    postures a servo-driven arm passes through on the way, and has fixed points there
+    that stop it hundreds of millimetres short on the real driver (benchmarks/NOTES.md
+    section 39). The deployed policy is unchanged. 0: off."""
+    train_capped_step: float = 0.025
+    """rad per step of `train_capped_fraction` (0.025: 0.5 rad/s at a 0.05 s control
+    period, the real driver's default speed)."""
     bound_coef: float = 0.0
     """Weight of a loss that keeps the Gaussian mean inside the env's joint box:
     bound_coef * E[sum_j relu(mean_j - upper_j)^2 + relu(lower_j - mean_j)^2] (rad^2).
@@ -162,6 +173,8 @@ class CurriculumConfig(_ConfigMixin):
         _check_range("train_clearance_penalty", self.train_clearance_penalty, 0.0, math.inf)
         _check_range("train_clearance_mm", self.train_clearance_mm, 0.0, 100.0, low_open=True)
         _check_int("train_clearance_points", self.train_clearance_points, minimum=1)
+        _check_range("train_capped_fraction", self.train_capped_fraction, 0.0, 1.0)
+        _check_range("train_capped_step", self.train_capped_step, 0.0, math.pi, low_open=True)
         if self.train_clearance_path not in ("servo", "line"):
             raise ValueError(
                 f"train_clearance_path={self.train_clearance_path!r}: choose 'servo' or 'line'"

@@ -36,6 +36,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 from flax import struct
 from jax.flatten_util import ravel_pytree
@@ -190,6 +191,11 @@ def make_train(
         )
 
     # ------------------------------------------------------------------ rollout
+    capped_fraction, capped_step = curriculum.train_capped_fraction, curriculum.train_capped_step
+    # the last round(fraction N) envs (CurriculumConfig.train_capped_fraction)
+    n_capped = round(capped_fraction * config.num_envs)
+    capped = jnp.asarray(np.arange(config.num_envs) >= config.num_envs - n_capped)
+
     def rollout(
         params: Any, stats: RunningStats | None, env_state: BatchedState, key: jax.Array
     ) -> tuple[BatchedState, Transition, dict[str, jax.Array]]:
@@ -216,6 +222,10 @@ def make_train(
             if step_max > 0.0:  # samples stay within m of the observed joints
                 q = env_state.obs[..., : action.shape[-1]]
                 env_action = jnp.clip(action, q - step_max, q + step_max)
+            if capped_fraction > 0.0:  # these envs move at a servo's pace (training only)
+                q = env_state.obs[..., : action.shape[-1]]
+                slow = jnp.clip(env_action, q - capped_step, q + capped_step)
+                env_action = jnp.where(capped[:, None] & ~probe, slow, env_action)
             next_state = benv.step(env_state, env_action)
             transition = Transition(
                 obs=env_state.obs,
