@@ -37,10 +37,14 @@ def run(argv: list[str]) -> float:
 def summary(report: Path) -> dict:
     data = json.loads(report.read_text())
     ev = data.get("summary") or data.get("eval", {}).get("summary") or data
-    # a fixed-target report counts episodes; a random-target one, held-out poses (and has
-    # no orientation on the position-only tasks)
+    # a fixed-target report counts episodes reached; a random-target one, held-out poses
+    # held to the horizon (and has no orientation on the position-only tasks)
+    if "poses" in ev:  # held to the horizon (tolerance 0): count the poses within 5 mm
+        reached = round(ev["within_mm"]["5"] * ev["poses"])
+    else:
+        reached = ev["reached_tolerance"]
     return {
-        "reached": ev["reached_tolerance"],
+        "reached": reached,
         "episodes": ev["episodes"] if "episodes" in ev else ev["poses"],
         "position_mm": ev["position_error_mm"]["mean"],
         "orientation_deg": ev.get("orientation_error_deg", {}).get("mean", []),
@@ -123,7 +127,7 @@ def main() -> None:
         f"onnxruntime {onnxruntime.__version__}). Per seed: export, then `evaluate` on the "
         "checkpoint and on the file.",
         "",
-        "| seed | reached (ckpt / onnx) | position mean ckpt (mm) | max diff (mm / deg) | "
+        "| seed | reached (ckpt / onnx; random targets: poses within 5 mm) | position mean ckpt (mm) | max diff (mm / deg) | "
         "collisions (ckpt / onnx) | self-check (rad, ref) | match |",
         "|---|---|---|---|---|---|---|",
     ]

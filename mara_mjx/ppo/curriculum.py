@@ -115,10 +115,10 @@ class CurriculumConfig(_ConfigMixin):
     """Postures checked per step by `train_clearance_penalty` (1: the landing only)."""
     train_clearance_path: str = "servo"
     """The way between the observed posture and the landing that `train_clearance_penalty`
-    checks: 'servo', the real driver's (every joint at the same speed until it arrives,
-    spec section 5, and the deployed rate limit's: q + clip(dq, -s, s) for s up to
-    max |dq|), or 'line', the straight joint-space line (a synchronised trajectory
-    controller's)."""
+    checks: 'servo', the real driver's reference (every joint at the same speed until it
+    arrives, spec section 5: q + clip(dq, -s, s) for s up to max |dq|), or 'line', the
+    straight joint-space line (the deployed rate limit's, EvalConfig.rate_limit, and a
+    synchronised trajectory controller's)."""
     train_capped_fraction: float = 0.0
     """Training only: this fraction of the rollout's envs (the last ones) move each joint at
     most `train_capped_step` rad per step toward the sampled target, the way a servo
