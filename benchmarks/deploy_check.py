@@ -85,10 +85,8 @@ def main() -> None:
                           "--json", str(work / "onnx.json")])  # fmt: skip
             a, b = summary(work / "ckpt.json"), summary(work / "onnx.json")
             d_mm = max(abs(x - y) for x, y in zip(a["position_mm"], b["position_mm"], strict=True))
-            d_deg = max(
-                (abs(x - y) for x, y in zip(a["orientation_deg"], b["orientation_deg"], strict=True)),
-                default=0.0,
-            )
+            pairs = zip(a["orientation_deg"], b["orientation_deg"], strict=True)
+            d_deg = max((abs(x - y) for x, y in pairs), default=0.0)
             import onnx as onnx_lib
 
             props = {p.key: p.value for p in onnx_lib.load(str(onnx)).metadata_props}
@@ -127,7 +125,8 @@ def main() -> None:
         f"onnxruntime {onnxruntime.__version__}). Per seed: export, then `evaluate` on the "
         "checkpoint and on the file.",
         "",
-        "| seed | reached (ckpt / onnx; random targets: poses within 5 mm) | position mean ckpt (mm) | max diff (mm / deg) | "
+        "| seed | reached (ckpt / onnx; random targets: poses within 5 mm) | "
+        "position mean ckpt (mm) | max diff (mm / deg) | "
         "collisions (ckpt / onnx) | self-check (rad, ref) | match |",
         "|---|---|---|---|---|---|---|",
     ]
