@@ -67,8 +67,9 @@ def main() -> None:
     parser.add_argument("--label", required=True)
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--seed", type=int, default=1000)
-    args, extra = parser.parse_known_args()
-    extra = [x for x in extra if x != "--"]
+    argv = sys.argv[1:]
+    cut = argv.index("--") if "--" in argv else len(argv)
+    args, extra = parser.parse_args(argv[:cut]), argv[cut + 1 :]  # after --: evaluate's
     args.out.mkdir(parents=True, exist_ok=True)
     py = [sys.executable, "-m"]
     flags = ["--episodes", str(args.episodes), "--seed", str(args.seed), *extra]
