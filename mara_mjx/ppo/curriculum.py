@@ -2,13 +2,15 @@
 
     CurriculumConfig   reward schedules (train_reward, train_reset_noise, fading by
                        train_reward_until), penalties (collisions, joint limits, the
-                       mean outside the joint box), an orientation bonus, staggered first
-                       episodes, population-based training, and the reach probe (a
-                       measurement of the saved policy during training)
+                       mean outside the joint box, a margin from contacts), an orientation
+                       bonus, staggered first episodes, a share of envs at a servo's pace,
+                       population-based training, and the reach probe (a measurement of
+                       the saved policy during training)
     resolve(curriculum, env) -> the config with what `env` cannot apply cleared
     make_schedule(curriculum, env, benv, num_updates) -> Schedule: the functions
                        `mara_mjx.ppo.train.make_train` calls (the rollout's env params,
                        the first episodes, the shaped reward)
+    capped_envs(curriculum, num_envs) -> the servo-paced share's action cap, or None
 
 It is `TrainConfig.curriculum` (`mara_mjx.ppo.config`); evaluation, the saved policy and
 the exported file never read it, so it is off there by construction. Its flags are the
@@ -281,6 +283,22 @@ def clearance_penalty(
             way = t * dq
         c = jnp.min(clearance(q[..., None, :] + way), -1)
     return jax.nn.relu(1.0 - c / margin)
+
+
+def capped_envs(config: CurriculumConfig, num_envs: int) -> Callable | None:
+    """(env_action, q, probe) -> env_action with the last `train_capped_fraction` of the
+    `num_envs` moving each joint at most `train_capped_step` from the observed q (not on
+    the probe step), or None when off (CurriculumConfig.train_capped_fraction)."""
+    if config.train_capped_fraction <= 0.0:
+        return None
+    n = round(config.train_capped_fraction * num_envs)
+    mask = (jnp.arange(num_envs) >= num_envs - n)[:, None]
+    step = config.train_capped_step
+
+    def cap(action: jax.Array, q: jax.Array, probe: jax.Array) -> jax.Array:
+        return jnp.where(mask & ~probe, jnp.clip(action, q - step, q + step), action)
+
+    return cap
 
 
 def orientation_bonus(metrics: dict[str, jax.Array], config: CurriculumConfig) -> jax.Array:

@@ -36,14 +36,13 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
 from flax import struct
 from jax.flatten_util import ravel_pytree
 
 from mara_mjx.envs.batched import BatchedEnv, BatchedState
 from mara_mjx.ppo.config import PPOConfig, TrainConfig, for_env
-from mara_mjx.ppo.curriculum import bound_loss, make_schedule, reach_probe
+from mara_mjx.ppo.curriculum import bound_loss, capped_envs, make_schedule, reach_probe
 from mara_mjx.ppo.losses import gae, ppo_loss
 from mara_mjx.ppo.members import population
 from mara_mjx.ppo.metrics import probe_metric_summary, rollout_metrics
@@ -191,10 +190,7 @@ def make_train(
         )
 
     # ------------------------------------------------------------------ rollout
-    capped_fraction, capped_step = curriculum.train_capped_fraction, curriculum.train_capped_step
-    # the last round(fraction N) envs (CurriculumConfig.train_capped_fraction)
-    n_capped = round(capped_fraction * config.num_envs)
-    capped = jnp.asarray(np.arange(config.num_envs) >= config.num_envs - n_capped)
+    capped = capped_envs(curriculum, config.num_envs)  # None unless asked for
 
     def rollout(
         params: Any, stats: RunningStats | None, env_state: BatchedState, key: jax.Array
@@ -222,10 +218,8 @@ def make_train(
             if step_max > 0.0:  # samples stay within m of the observed joints
                 q = env_state.obs[..., : action.shape[-1]]
                 env_action = jnp.clip(action, q - step_max, q + step_max)
-            if capped_fraction > 0.0:  # these envs move at a servo's pace (training only)
-                q = env_state.obs[..., : action.shape[-1]]
-                slow = jnp.clip(env_action, q - capped_step, q + capped_step)
-                env_action = jnp.where(capped[:, None] & ~probe, slow, env_action)
+            if capped is not None:  # a share of the envs moves at a servo's pace
+                env_action = capped(env_action, env_state.obs[..., : action.shape[-1]], probe)
             next_state = benv.step(env_state, env_action)
             transition = Transition(
                 obs=env_state.obs,
