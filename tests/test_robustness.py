@@ -172,3 +172,24 @@ def test_a_rerun_with_other_flags_gets_its_own_run_folder(tmp_path):
     (again,) = make_jobs(base, tmp_path)
     assert len({a.out, b.out, c.out}) == 3 and again.out == a.out
     assert a.out.name.startswith("MARA-cli-")
+
+
+def test_select_trains_k_seeds_per_judged_seed_and_keeps_the_one_that_transfers(tmp_path):
+    from mara_mjx.bench.robustness_judge import select_seeds
+
+    config = RobustnessConfig(tasks=("MARA",), recipes=("default",), seeds=2, select=3)
+    assert " --seeds 6 " in make_jobs(config, tmp_path)[0].command
+    assert config.selection_seed == 1001  # never the judged episodes
+    with pytest.raises(ValueError, match="select_seed=1000 is eval_seed"):
+        RobustnessConfig(tasks=("MARA",), select=2, select_seed=1000)
+
+    def row(w3, w5, err):
+        runs = {"0.3": w3, "0.5": w5}
+        return {"real": {v: {"within_5": w, "position_mm": {"mean": [err] * 3}}
+                         for v, w in runs.items()}}  # fmt: skip
+
+    rows = [row(1.0, 0.5, 1.0), row(0.9, 0.9, 9.0), row(0.9, 0.9, 2.0),  # group 1: index 2
+            row(0.0, 0.0, 1.0), row(1.0, 1.0, 0.5), row(1.0, 1.0, 0.4)]  # fmt: skip
+    picks, records = select_seeds(list(range(10, 16)), rows, 3)
+    assert picks == [2, 5]  # the highest worst-velocity fraction, then the lowest error
+    assert records[0]["group"] == [10, 11, 12] and records[1]["within_5"][13]["0.3"] == 0.0

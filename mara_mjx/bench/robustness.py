@@ -42,6 +42,13 @@ seeds (`--bootstrap` resamples, as rliable reports RL results), and the worst se
 all its numbers. Output: robustness.json (every seed's numbers, the commands),
 robustness.md (one row per recipe and metric, failures named) and robustness.png (one
 dot per seed, failed seeds in red).
+
+`--select K` judges a recipe that trains K seeds and keeps the one that transfers: seeds x
+K seeds train in the one program, each seed is first run on the real driver with
+randomised physics (`--select_draws` draws per velocity, keys from `--select_seed`, not
+the judged ones), and of each group of K consecutive seeds only the best (the highest
+smallest fraction within 5 mm over the velocities, then the lowest mean error) is judged
+as above; its record names the group and every candidate's selection numbers.
 """
 
 from __future__ import annotations
@@ -61,6 +68,7 @@ from mara_mjx.bench.robustness_judge import (
     judge_real,
     judge_targets,
     load_seeds,
+    select_seeds,
 )
 from mara_mjx.bench.robustness_report import TABLE, print_job, summarise
 from mara_mjx.bench.runner import BenchConfig, Study
@@ -112,6 +120,13 @@ class RobustnessConfig(BenchConfig):
     parallel: int = 0
     """Train commands at a time, each on its own GPU (0: one per GPU of the host; 1 or a
     host without several GPUs: one at a time)."""
+    select: int = 1
+    """Seeds trained per judged seed (K): each group of K keeps its seed that does best on
+    the real driver with randomised physics (the module docstring). 1: no selection."""
+    select_draws: int = 200
+    """Episodes (physics draws) per velocity of the selection run."""
+    select_seed: int = -1
+    """Seed of the selection run's draws (-1: eval_seed + 1; never eval_seed)."""
     work_dir: str = ""
     """Folder that receives the run folders and command logs, and is kept: a rerun with
     the same folder judges the runs whose same train command finished there instead of
@@ -124,11 +139,13 @@ class RobustnessConfig(BenchConfig):
         "poses": 4,
         "draws": 4,
         "bootstrap": 50,
+        "select_draws": 4,
         "train_args": "--num_envs 4 --num_steps 8 --total_timesteps 64 --num_minibatches 2 "
         "--update_epochs 2 --max_episode_steps 16 --updates_per_call 1",
     }
     POSITIVE: ClassVar[tuple[str, ...]] = (
-        "seeds", "episodes", "poses", "draws", "bootstrap", "timeout_s")  # fmt: skip
+        "seeds", "episodes", "poses", "draws", "bootstrap", "timeout_s", "select",
+        "select_draws")  # fmt: skip
     SHARES_DEVICE: ClassVar[bool] = True
 
     def __post_init__(self):
@@ -136,6 +153,12 @@ class RobustnessConfig(BenchConfig):
         check_int("seed_offset", self.seed_offset, minimum=0)
         check_int("eval_seed", self.eval_seed, minimum=0)
         check_int("parallel", self.parallel, minimum=0)
+        check_int("select_seed", self.select_seed, minimum=-1)
+        if self.selection_seed == self.eval_seed:
+            raise ValueError(
+                f"select_seed={self.select_seed} is eval_seed: the seeds would be chosen on "
+                "the episodes they are judged on; choose another"
+            )
         if not self.recipes or len(set(self.recipes)) != len(self.recipes):
             raise ValueError(f"recipes must be distinct and at least one, got {self.recipes}")
         if not 0.0 < self.fail_fraction <= 1.0:
@@ -151,6 +174,11 @@ class RobustnessConfig(BenchConfig):
                 if taken:
                     raise ValueError(f"recipe {recipe!r}: the study sets {' '.join(taken)}")
                 check_train_args(f"{flags} {self.train_args}", task, preset)
+
+    @property
+    def selection_seed(self) -> int:
+        """The selection run's seed (select_seed, or eval_seed + 1)."""
+        return self.eval_seed + 1 if self.select_seed < 0 else self.select_seed
 
 
 def split_recipe(recipe: str) -> tuple[str, str]:
@@ -174,7 +202,7 @@ def train_argv(config: RobustnessConfig, task: str, recipe: str, out: Path) -> l
     """The train command of the module docstring."""
     preset, flags = split_recipe(recipe)
     argv = [sys.executable, "-m", "mara_mjx.train", "--env", task]
-    argv += ["--seed", str(config.seed_offset), "--seeds", str(config.seeds)]
+    argv += ["--seed", str(config.seed_offset), "--seeds", str(config.seeds * config.select)]
     argv += ["--preset", preset] if preset else []
     argv += [*shlex.split(flags), *QUIET, *shlex.split(config.train_args)]
     return argv + ["--out", str(out)]
@@ -297,7 +325,7 @@ def judge(config: RobustnessConfig, job: Job, timing: dict[str, Any]) -> list[di
     from mara_mjx.ppo.seed_eval import stack_policies
     from mara_mjx.runtime import runs
 
-    seeds = list(range(config.seed_offset, config.seed_offset + config.seeds))
+    seeds = list(range(config.seed_offset, config.seed_offset + config.seeds * config.select))
     base = {"task": job.task, "recipe": job.recipe, "preset": job.preset, "command": job.command}
     if "error" in timing:
         return [{"kind": "error", **base, "error": timing["error"]}]
@@ -305,9 +333,18 @@ def judge(config: RobustnessConfig, job: Job, timing: dict[str, Any]) -> list[di
         policies, meta, milestones = load_seeds(job.out, seeds)
     except ValueError as e:  # CheckpointError: a run folder the study cannot judge
         return [{"kind": "error", **base, "error": f"cannot load the seeds' checkpoints: {e}"}]
-    policy = stack_policies(policies)
     env = runs.make_env(meta)
     orientation = is_orient_task(env)
+    chosen = [{}] * len(seeds)
+    if config.select > 1:  # the module docstring's --select
+        trial = dataclasses.replace(
+            config, draws=config.select_draws, eval_seed=config.selection_seed, select_seed=-1
+        )
+        tried = judge_real(meta, stack_policies(policies), len(seeds), trial, orientation)
+        picks, chosen = select_seeds(seeds, tried, config.select)
+        seeds = [seeds[i] for i in picks]
+        policies, milestones = [policies[i] for i in picks], [milestones[i] for i in picks]
+    policy = stack_policies(policies)
     if is_random_target(env):
         rows = judge_targets(env, policy, len(seeds), config, orientation)
     else:
@@ -317,10 +354,11 @@ def judge(config: RobustnessConfig, job: Job, timing: dict[str, Any]) -> list[di
         rows = [{**a, **b} for a, b in zip(rows, real, strict=True)]
     jax.clear_caches()  # the next job's programs differ; free these
     records = []
-    for seed, row, marks in zip(seeds, rows, milestones, strict=True):
+    for seed, row, marks, pick in zip(seeds, rows, milestones, chosen, strict=False):
         why = failure(row, job.task, config)
         records.append({
             "kind": "seed", **base, "seed": seed, **row, "failed": bool(why), "why": why,
+            **({"selection": pick} if pick else {}),
             "time_to_1mm_s": marks.get("1mm", {}).get("time_s"),
             "env_steps_to_1mm": marks.get("1mm", {}).get("env_steps"),
         })  # fmt: skip

@@ -177,3 +177,29 @@ def failure(row: dict[str, Any], task: str, config: Any) -> list[str]:
         if r is not None and r["within_5"] < config.fail_fraction:
             why.append(f"{name}: {100 * r['within_5']:.1f}% within 5 mm/deg")
     return why
+
+
+def select_seeds(
+    seeds: list[int], rows: list[dict[str, Any]], k: int
+) -> tuple[list[int], list[dict[str, Any]]]:
+    """(indexes of the chosen seeds, one record each) of the seeds' selection run (judge_real
+    rows): of each group of k consecutive seeds the one with the highest smallest fraction
+    within 5 mm over the velocities, then the lowest mean error (bench.robustness --select)."""
+
+    def score(row: dict[str, Any]) -> tuple[float, float]:
+        runs = row["real"].values()
+        worst = min(r["within_5"] for r in runs)
+        error = float(np.mean([np.mean(r["position_mm"]["mean"]) for r in runs]))
+        return (-worst, error)
+
+    picks, records = [], []
+    for start in range(0, len(seeds), k):
+        group = list(range(start, min(start + k, len(seeds))))
+        best = min(group, key=lambda i: score(rows[i]))
+        picks.append(best)
+        records.append({
+            "group": [seeds[i] for i in group],
+            "within_5": {seeds[i]: {v: r["within_5"] for v, r in rows[i]["real"].items()}
+                         for i in group},
+        })  # fmt: skip
+    return picks, records
