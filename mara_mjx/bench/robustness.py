@@ -335,8 +335,9 @@ def judge(config: RobustnessConfig, job: Job, timing: dict[str, Any]) -> list[di
         return [{"kind": "error", **base, "error": f"cannot load the seeds' checkpoints: {e}"}]
     env = runs.make_env(meta)
     orientation = is_orient_task(env)
-    chosen = [{}] * len(seeds)
-    if config.select > 1:  # the module docstring's --select
+    chosen = [{}] * len(seeds)  # no selection: no record
+    if config.select > 1:  # the module docstring's --select; its own seed, and no
+        # select_seed to check against it
         trial = dataclasses.replace(
             config, draws=config.select_draws, eval_seed=config.selection_seed, select_seed=-1
         )
@@ -354,7 +355,7 @@ def judge(config: RobustnessConfig, job: Job, timing: dict[str, Any]) -> list[di
         rows = [{**a, **b} for a, b in zip(rows, real, strict=True)]
     jax.clear_caches()  # the next job's programs differ; free these
     records = []
-    for seed, row, marks, pick in zip(seeds, rows, milestones, chosen, strict=False):
+    for seed, row, marks, pick in zip(seeds, rows, milestones, chosen, strict=True):
         why = failure(row, job.task, config)
         records.append({
             "kind": "seed", **base, "seed": seed, **row, "failed": bool(why), "why": why,

@@ -258,30 +258,23 @@ def limit_penalty(q: jax.Array, lower: jax.Array, upper: jax.Array, soft: float)
 
 
 def clearance_penalty(
-    q: jax.Array,
-    margin: float,
-    q_next: jax.Array | None = None,
-    points: int = 1,
-    path: str = "servo",
+    q: jax.Array, q_next: jax.Array, margin: float, points: int, path: str
 ) -> jax.Array:
     """relu(1 - c / margin): 0 beyond `margin` (m) from every contact of the nominal arm, 1
-    at contact (CurriculumConfig.train_clearance_penalty); q (..., 6). c is the clearance
-    at q, or, with `q_next`, the smallest at `points` evenly spaced postures of the way
-    from q to q_next (q_next included, q not): 'servo', q + clip(dq, -s, s) for s up to
-    max |dq| (each joint at one speed until it arrives), or 'line', q + t dq."""
+    at contact (CurriculumConfig.train_clearance_penalty); q, q_next (..., 6). c is the
+    smallest clearance at `points` evenly spaced postures of the way from q to q_next
+    (q_next included, q not): 'servo', q + clip(dq, -s, s) for s up to max |dq| (each
+    joint at one speed until it arrives), or 'line', q + t dq."""
     from mara_mjx.envs.clearance import clearance
 
-    if q_next is None:
-        c = clearance(q)
+    dq = (q_next - q)[..., None, :]
+    t = (jnp.arange(1, points + 1, dtype=q.dtype) / points)[:, None]  # (points, 1)
+    if path == "servo":
+        s = t * jnp.max(jnp.abs(dq), -1, keepdims=True)
+        way = jnp.clip(dq, -s, s)
     else:
-        dq = (q_next - q)[..., None, :]
-        t = (jnp.arange(1, points + 1, dtype=q.dtype) / points)[:, None]  # (points, 1)
-        if path == "servo":
-            s = t * jnp.max(jnp.abs(dq), -1, keepdims=True)
-            way = jnp.clip(dq, -s, s)
-        else:
-            way = t * dq
-        c = jnp.min(clearance(q[..., None, :] + way), -1)
+        way = t * dq
+    c = jnp.min(clearance(q[..., None, :] + way), -1)
     return jax.nn.relu(1.0 - c / margin)
 
 
@@ -437,8 +430,8 @@ def make_schedule(config: CurriculumConfig, env: Any, benv: Any, num_updates: in
             q_next = traj.final_obs[..., : lower.shape[-1]]  # the landing, before any reset
             reward = reward - config.train_clearance_penalty * clearance_penalty(
                 q,
-                config.train_clearance_mm * 1e-3,
                 q_next,
+                config.train_clearance_mm * 1e-3,
                 config.train_clearance_points,
                 config.train_clearance_path,
             )

@@ -213,13 +213,12 @@ def make_train(
                     lambda: mean,
                 )
             action = jnp.where(probe, probe_mean, sample)
-            env_action = action
+            env_action, q = action, env_state.obs[..., : action.shape[-1]]  # observed joints
             step_max = train_config.policy.max_joint_step
             if step_max > 0.0:  # samples stay within m of the observed joints
-                q = env_state.obs[..., : action.shape[-1]]
                 env_action = jnp.clip(action, q - step_max, q + step_max)
             if capped is not None:  # a share of the envs moves at a servo's pace
-                env_action = capped(env_action, env_state.obs[..., : action.shape[-1]], probe)
+                env_action = capped(env_action, q, probe)
             next_state = benv.step(env_state, env_action)
             transition = Transition(
                 obs=env_state.obs,
