@@ -8,12 +8,9 @@
 #   MARACollisionRandomTarget and MARACollisionOrientRandomTarget, 8 seeds from 1000,
 #   final checkpoints kept for benchmarks/deploy_check.py on the CPU.
 cd "$(dirname "$0")/../.."
-export XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUFFERED=1 JAX_DEFAULT_MATMUL_PRECISION=highest JAX_COMPILATION_CACHE_DIR=/tmp/jaxcache JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0
+. benchmarks/gpu/lib.sh
 nvidia-smi -L
-mkdir -p /tmp/res /tmp/ck
-keep() {  # keep(run_dir, tgz): each seed's config and final checkpoint
-  tar czf "$2" -C "$1" $(cd "$1" && for s in seed_*; do echo $s/config.json $s/checkpoints/$(ls $s/checkpoints | sort | tail -1); done)
-}
+mkdir -p /tmp/ck
 (
   for t in MARA MARACollision MARACollisionRandomTarget MARACollisionOrientRandomTarget; do
     s=$(date +%s)

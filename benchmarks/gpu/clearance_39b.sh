@@ -3,7 +3,7 @@
 # seed 7): the clearance penalty checked along the servo path (train_clearance_path servo,
 # 8 points), margins 10 and 20 mm; the same machine as clearance_39.sh's round 1.
 cd "$(dirname "$0")/../.."
-export XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUFFERED=1 JAX_DEFAULT_MATMUL_PRECISION=highest JAX_COMPILATION_CACHE_DIR=/tmp/jaxcache JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0
+. benchmarks/gpu/lib.sh
 python -m mara_mjx.benchmark robustness --seeds 8 --seed_offset 0 --eval_seed 7 --tasks MARACollision \
   --recipes "default --randomize --train_clearance_penalty 1" \
             "default --randomize --train_clearance_penalty 1 --train_clearance_mm 20" \

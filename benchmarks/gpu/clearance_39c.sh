@@ -7,7 +7,7 @@
 # 2) round 2's `--train_clearance_penalty 1` trainings (checkpoints carried back in
 #    gpu_carry/ck_dev2_pen1.tgz) judged on the real driver without the rate limit.
 cd "$(dirname "$0")/../.."
-export XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUFFERED=1 JAX_DEFAULT_MATMUL_PRECISION=highest JAX_COMPILATION_CACHE_DIR=/tmp/jaxcache JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0
+. benchmarks/gpu/lib.sh
 nvidia-smi -L
 J=MARACollision-default-randomize-train_clearance_penalty-1-ff6b5cfa
 R=/tmp/work/dev2nrl/runs/$J

@@ -4,8 +4,7 @@
 # at 1x and 2x (1x checkpoints kept), and the same run's baseline `default --randomize`
 # (1x) at the same time on the same GPU.
 cd "$(dirname "$0")/../.."
-export XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUFFERED=1 JAX_DEFAULT_MATMUL_PRECISION=highest JAX_COMPILATION_CACHE_DIR=/tmp/jaxcache JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0
-mkdir -p /tmp/res
+. benchmarks/gpu/lib.sh
 (python -m mara_mjx.benchmark robustness --seeds 16 --seed_offset 1000 --eval_seed 1000 \
   --tasks MARACollision --recipes "default --randomize" \
   --real_driver --rate_limit false --out /tmp/res/claims_base --work_dir /tmp/work/claims_base > /tmp/res/claims_base.log 2>&1; echo BASE_DONE >> /tmp/res/claims_base.log) &
@@ -14,6 +13,6 @@ python -m mara_mjx.benchmark robustness --seeds 16 --seed_offset 1000 --eval_see
   "default --randomize --train_clearance_penalty 1 --total_timesteps 100000000" \
   --real_driver --rate_limit false --out /tmp/res/claims --work_dir /tmp/work/claims
 R=$(ls -d /tmp/work/claims/runs/*/ | awk "{print length, \$0}" | sort -n | head -1 | cut -d" " -f2)
-tar czf /tmp/res/ck_claims_1x.tgz -C "$R" $(cd "$R" && for s in seed_*; do echo $s/config.json $s/checkpoints/$(ls $s/checkpoints | sort | tail -1); done)
+keep "$R" /tmp/res/ck_claims_1x.tgz
 wait
 echo DRIVER_DONE

@@ -4,13 +4,13 @@
 # seed's config and final checkpoint kept in /tmp/res/ck_<task>.tgz for
 # benchmarks/deploy_check.py on the CPU.
 cd "$(dirname "$0")/../.."
-export XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUFFERED=1 JAX_DEFAULT_MATMUL_PRECISION=highest JAX_COMPILATION_CACHE_DIR=/tmp/jaxcache JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0
-mkdir -p /tmp/res /tmp/ck
+. benchmarks/gpu/lib.sh
+mkdir -p /tmp/ck
 for t in MARA MARACollision MARACollisionRandomTarget MARACollisionOrientRandomTarget; do
   s=$(date +%s)
   python -m mara_mjx.train --env $t --seed 1000 --seeds 8 --evaluate false --plots false \
     --tensorboard false --progress false --out /tmp/ck/$t > /tmp/res/train_$t.log 2>&1
   echo "$t rc $? $(( $(date +%s) - s )) s"
-  tar czf /tmp/res/ck_$t.tgz.part -C /tmp/ck/$t $(cd /tmp/ck/$t && for d in seed_*; do echo $d/config.json $d/checkpoints/$(ls $d/checkpoints | sort | tail -1); done) && mv /tmp/res/ck_$t.tgz.part /tmp/res/ck_$t.tgz
+  keep /tmp/ck/$t /tmp/res/ck_$t.tgz
 done
 echo STREAM2_DONE
