@@ -3,16 +3,10 @@
 # seeds (1016-1079) of `default --randomize --train_clearance_penalty 1`, trained in one
 # program, kept 1 of each 4 by the real driver with randomised physics on the selection
 # draws (seed 1001), the 16 picks judged on evaluation seed 1000, without the rate limit;
-# 1x and 2x as two studies at once on one GPU. Before them, on the idle GPU, issue 35's
-# cold start: the compile log of the Orient CLI default with an empty compilation cache.
+# 1x and 2x as two studies at once on one GPU (about 24 minutes on an H200). Launch it
+# with setsid (a call's own background jobs end with the call) and follow it with poll.sh.
 cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
-rm -rf /tmp/jaxcache_cold
-( s=$(date +%s.%N)
-  JAX_COMPILATION_CACHE_DIR=/tmp/jaxcache_cold JAX_LOG_COMPILES=1 python -m mara_mjx.train \
-    --env MARACollisionOrient --seed 1000 --plots false --tensorboard false --progress false \
-    --out /tmp/cold_run > /tmp/res/cold.log 2>&1
-  echo "rc $? wall $(python -c "import time;print(time.time()-$s)")" >> /tmp/res/cold.log )
 R="default --randomize --train_clearance_penalty 1"
 study sel4_1x 1016 1000 "$R" --select 4 &
 study sel4_2x 1016 1000 "$R --total_timesteps 100000000" --select 4 &
