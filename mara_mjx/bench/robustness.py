@@ -47,8 +47,9 @@ dot per seed, failed seeds in red).
 K seeds train in the one program, each seed is first run on the real driver with
 randomised physics (`--select_draws` draws per velocity, keys from `--select_seed`, not
 the judged ones), and of each group of K consecutive seeds only the best (the highest
-smallest fraction within 5 mm over the velocities, then the lowest mean error) is judged
-as above; its record names the group and every candidate's selection numbers.
+smallest fraction within 5 mm over the velocities, then the smallest largest fraction of
+episodes with a collision, then the lowest mean error) is judged as above; its record
+names the group and every candidate's selection numbers.
 """
 
 from __future__ import annotations

@@ -184,22 +184,24 @@ def select_seeds(
 ) -> tuple[list[int], list[dict[str, Any]]]:
     """(indexes of the chosen seeds, one record each) of the seeds' selection run (judge_real
     rows): of each group of k consecutive seeds the one with the highest smallest fraction
-    within 5 mm over the velocities, then the lowest mean error (bench.robustness --select)."""
+    within 5 mm over the velocities, then the smallest largest fraction of episodes with a
+    collision, then the lowest mean error (bench.robustness --select)."""
 
-    def score(row: dict[str, Any]) -> tuple[float, float]:
-        runs = row["real"].values()
-        worst = min(r["within_5"] for r in runs)
-        error = float(np.mean([np.mean(r["position_mm"]["mean"]) for r in runs]))
-        return (-worst, error)
+    def numbers(row: dict[str, Any]) -> dict[str, dict[str, float]]:
+        return {v: {"within_5": r["within_5"], "colliding": r["episodes_colliding"],
+                    "error_mm": float(np.mean(r["position_mm"]["mean"]))}
+                for v, r in row["real"].items()}  # fmt: skip
+
+    def score(row: dict[str, Any]) -> tuple[float, float, float]:
+        runs = numbers(row).values()
+        return (-min(r["within_5"] for r in runs), max(r["colliding"] for r in runs),
+                float(np.mean([r["error_mm"] for r in runs])))  # fmt: skip
 
     picks, records = [], []
     for start in range(0, len(seeds), k):
         group = list(range(start, min(start + k, len(seeds))))
         best = min(group, key=lambda i: score(rows[i]))
         picks.append(best)
-        records.append({
-            "group": [seeds[i] for i in group],
-            "within_5": {seeds[i]: {v: r["within_5"] for v, r in rows[i]["real"].items()}
-                         for i in group},
-        })  # fmt: skip
+        records.append({"group": [seeds[i] for i in group],
+                        "candidates": {seeds[i]: numbers(rows[i]) for i in group}})  # fmt: skip
     return picks, records
