@@ -9,6 +9,7 @@
 # it with poll.sh.
 cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
+rm -f /tmp/res/studies.log /tmp/res/sent  # poll.sh stops at DRIVER_DONE; a warm machine keeps the last
 R="default --randomize --train_clearance_penalty 1"
 case $1 in
   1x) study sel4_1x 1016 1000 "$R" --select 4 ;;
