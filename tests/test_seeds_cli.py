@@ -170,3 +170,45 @@ def test_a_seeds_run_resumes_from_its_newest_common_checkpoint(seeds_run, cli_en
             np.testing.assert_allclose(resumed[name], original[name], atol=1e-6, err_msg=name)
         rows = read_rows(copy / f"seed_{s}" / "progress.csv")
         assert [int(r["update"]) for r in rows] == [1, 2]
+
+
+def test_select_cli_ranks_the_seeds_on_the_real_driver(seeds_run, cli_env, tmp_path):
+    """`python -m mara_mjx.select RUN_OF_SEEDS` as the sim-to-real recipe runs it (tiny:
+    2 draws at one speed): every seed judged on the real driver with randomised physics,
+    ranked by the study's selection_score, the first named as the one to deploy; its own
+    ranking is recognised (a rerun replaces it), a file it did not write is refused,
+    untouched, and a one-seed folder is refused with the reason."""
+    from mara_mjx.bench.robustness_judge import selection_score
+
+    out, _ = seeds_run
+    report_path = tmp_path / "rank.json"
+    flags = ["--velocities", "0.3", "--draws", "2", "--seed", "3", "--json", str(report_path)]
+    proc = run_module(cli_env, "mara_mjx.select", str(out), *flags)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    report = json.loads(report_path.read_text())
+    ranking = report["ranking"]
+    assert sorted(r["seed"] for r in ranking) == [0, 1]
+    scores = [selection_score(r) for r in ranking]
+    assert scores == sorted(scores)
+    assert report["chosen"] == ranking[0]["seed"]
+    assert report["chosen_folder"] == str(out / f"seed_{report['chosen']}")
+    for r in ranking:
+        real = r["real"]["0.3"]
+        assert set(r["velocities"]) == {"0.3"} and 0.0 <= real["within_5"] <= 1.0
+        assert r["velocities"]["0.3"]["colliding"] == real["episodes_colliding"]
+    assert report["settings"]["draws"] == 2 and report["settings"]["eval_seed"] == 3
+    text = report_path.with_suffix(".md").read_text()
+    assert f"chosen: seed {report['chosen']}, {out}/seed_{report['chosen']}" in text
+    assert text.splitlines()[0] in proc.stdout
+
+    from mara_mjx.cli.select import is_ranking  # a rerun replaces its own ranking
+
+    assert is_ranking(report_path) and not is_ranking(out / "seeds.json")
+
+    mine = tmp_path / "mine.json"
+    mine.write_text('{"keep": 1}')
+    refused = run_module(cli_env, "mara_mjx.select", str(out), "--json", str(mine))
+    assert refused.returncode == 2 and "exists and was not written by" in refused.stderr
+    assert mine.read_text() == '{"keep": 1}'
+    single = run_module(cli_env, "mara_mjx.select", str(out / "seed_0"))
+    assert single.returncode == 2 and "not the folder of a several-seed run" in single.stderr

@@ -6,7 +6,8 @@ all seeds in one vmapped program per judgement, and the rule by which a seed fai
 and hold, fixed-target tasks), `judge_targets` (held-out poses, random-target tasks) and
 `judge_real` (the real driver on randomised physics) return one row per seed, each
 judgement's numbers under its name (`pose_summary` for the last two); `failure` says why
-a seed misses its task's bar. `config` is the study's `RobustnessConfig` (typed `Any`
+a seed misses its task's bar; `select_seeds` keeps the best of each group of seeds on the
+real driver (the study's --select and `python -m mara_mjx.select`). `config` is the study's `RobustnessConfig` (typed `Any`
 here: that module imports this one).
 """
 
@@ -179,29 +180,34 @@ def failure(row: dict[str, Any], task: str, config: Any) -> list[str]:
     return why
 
 
+def selection_numbers(row: dict[str, Any]) -> dict[str, dict[str, float]]:
+    """Per velocity of a judge_real row: the fraction of episodes within 5 mm (5 deg),
+    the fraction with a collision and the mean error (mm, over the axes)."""
+    return {v: {"within_5": r["within_5"], "colliding": r["episodes_colliding"],
+                "error_mm": float(np.mean(r["position_mm"]["mean"]))}
+            for v, r in row["real"].items()}  # fmt: skip
+
+
+def selection_score(row: dict[str, Any]) -> tuple[float, float, float]:
+    """The sort key of a judge_real row, best first: the highest smallest fraction within
+    5 mm over the velocities, then the smallest largest fraction of episodes with a
+    collision, then the lowest mean error."""
+    runs = selection_numbers(row).values()
+    return (-min(r["within_5"] for r in runs), max(r["colliding"] for r in runs),
+            float(np.mean([r["error_mm"] for r in runs])))  # fmt: skip
+
+
 def select_seeds(
     seeds: list[int], rows: list[dict[str, Any]], k: int
 ) -> tuple[list[int], list[dict[str, Any]]]:
     """(indexes of the chosen seeds, one record each) of the seeds' selection run (judge_real
-    rows): of each group of k consecutive seeds the one with the highest smallest fraction
-    within 5 mm over the velocities, then the smallest largest fraction of episodes with a
-    collision, then the lowest mean error (bench.robustness --select)."""
-
-    def numbers(row: dict[str, Any]) -> dict[str, dict[str, float]]:
-        return {v: {"within_5": r["within_5"], "colliding": r["episodes_colliding"],
-                    "error_mm": float(np.mean(r["position_mm"]["mean"]))}
-                for v, r in row["real"].items()}  # fmt: skip
-
-    def score(row: dict[str, Any]) -> tuple[float, float, float]:
-        runs = numbers(row).values()
-        return (-min(r["within_5"] for r in runs), max(r["colliding"] for r in runs),
-                float(np.mean([r["error_mm"] for r in runs])))  # fmt: skip
-
+    rows): the best of each group of k consecutive seeds by selection_score
+    (bench.robustness --select; `python -m mara_mjx.select` with one group)."""
     picks, records = [], []
     for start in range(0, len(seeds), k):
         group = list(range(start, min(start + k, len(seeds))))
-        best = min(group, key=lambda i: score(rows[i]))
+        best = min(group, key=lambda i: selection_score(rows[i]))
         picks.append(best)
         records.append({"group": [seeds[i] for i in group],
-                        "candidates": {seeds[i]: numbers(rows[i]) for i in group}})  # fmt: skip
+                        "candidates": {seeds[i]: selection_numbers(rows[i]) for i in group}})  # fmt: skip
     return picks, records
