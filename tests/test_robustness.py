@@ -189,12 +189,23 @@ def test_select_trains_k_seeds_per_judged_seed_and_keeps_the_one_that_transfers(
                              "episodes_colliding": colliding}
                          for v, w in runs.items()}}  # fmt: skip
 
-    rows = [row(1.0, 0.5, 1.0), row(0.9, 0.9, 9.0), row(0.9, 0.9, 2.0),  # group 1: index 2
-            row(0.0, 0.0, 1.0), row(1.0, 1.0, 0.5), row(1.0, 1.0, 0.4),  # group 2: index 5
-            row(1.0, 1.0, 0.1, 0.3), row(1.0, 1.0, 0.9, 0.01), row(1.0, 0.9, 0.1)]  # 3: 7
+    rows = [
+        row(1.0, 0.5, 1.0),
+        row(0.9, 0.9, 9.0),
+        row(0.9, 0.9, 2.0),  # group 1: index 2
+        row(0.0, 0.0, 1.0),
+        row(1.0, 1.0, 0.5),
+        row(1.0, 1.0, 0.4),  # group 2: index 5
+        row(1.0, 1.0, 0.1, 0.3),
+        row(1.0, 1.0, 0.9, 0.01),
+        row(1.0, 0.9, 0.1),
+    ]  # 3: 7
     picks, records = select_seeds(list(range(10, 19)), rows, 3)
     # the highest worst-velocity fraction, then the fewest collisions, then the lowest error
     assert picks == [2, 5, 7]
     assert records[0]["group"] == [10, 11, 12]
-    assert records[1]["candidates"][13]["0.3"] == {"within_5": 0.0, "colliding": 0.0,
-                                                   "error_mm": 1.0}
+    assert records[1]["candidates"][13]["0.3"] == {
+        "within_5": 0.0,
+        "colliding": 0.0,
+        "error_mm": 1.0,
+    }

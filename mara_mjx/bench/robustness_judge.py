@@ -7,8 +7,8 @@ and hold, fixed-target tasks), `judge_targets` (held-out poses, random-target ta
 `judge_real` (the real driver on randomised physics) return one row per seed, each
 judgement's numbers under its name (`pose_summary` for the last two); `failure` says why
 a seed misses its task's bar; `select_seeds` keeps the best of each group of seeds on the
-real driver (the study's --select and `python -m mara_mjx.select`). `config` is the study's `RobustnessConfig` (typed `Any`
-here: that module imports this one).
+real driver (the study's --select and `python -m mara_mjx.select`). `config` is the
+study's `RobustnessConfig` (typed `Any` here: that module imports this one).
 """
 
 from __future__ import annotations
@@ -208,6 +208,6 @@ def select_seeds(
         group = list(range(start, min(start + k, len(seeds))))
         best = min(group, key=lambda i: selection_score(rows[i]))
         picks.append(best)
-        records.append({"group": [seeds[i] for i in group],
-                        "candidates": {seeds[i]: selection_numbers(rows[i]) for i in group}})  # fmt: skip
+        candidates = {seeds[i]: selection_numbers(rows[i]) for i in group}
+        records.append({"group": [seeds[i] for i in group], "candidates": candidates})
     return picks, records

@@ -172,8 +172,9 @@ def _main(args: argparse.Namespace) -> int:
         "command": PROG,
         "run": str(top),
         "env_name": meta["env_name"],
-        "settings": {k: list(v) if isinstance(v, tuple) else v
-                     for k, v in vars(settings).items()},  # fmt: skip
+        "settings": {
+            k: list(v) if isinstance(v, tuple) else v for k, v in vars(settings).items()
+        },  # fmt: skip
         **runs.provenance(),
         "chosen": ranking[0]["seed"],
         "chosen_folder": ranking[0]["folder"],
@@ -193,9 +194,10 @@ def markdown(report: dict[str, Any]) -> str:
     head = ["rank", "seed"]
     for v in speeds:
         head += [f"{v} rad/s: within 5 mm", "colliding", "mean error (mm)"]
+    settings = report["settings"]
     lines = [
         f"{report['env_name']}, run {report['run']}: the real driver with randomised physics, "
-        f"{report['settings']['draws']} draws per velocity (seed {report['settings']['eval_seed']})",
+        f"{settings['draws']} draws per velocity (seed {settings['eval_seed']})",
         "",
         "| " + " | ".join(head) + " |",
         "|" + "---|" * len(head),
@@ -209,9 +211,13 @@ def markdown(report: dict[str, Any]) -> str:
         lines.append("| " + " | ".join(cells) + " |")
     best = report["ranking"][0]["velocities"]
     worst = min(n["within_5"] for n in best.values())
-    verdict = "" if worst >= 0.99 else (
-        f" (warning: it ends within 5 mm in only {100 * worst:.1f}% of the episodes at its "
-        "worst speed; train more seeds)"
+    verdict = (
+        ""
+        if worst >= 0.99
+        else (
+            f" (warning: it ends within 5 mm in only {100 * worst:.1f}% of the episodes at its "
+            "worst speed; train more seeds)"
+        )
     )
     lines += ["", f"chosen: seed {report['chosen']}, {report['chosen_folder']}{verdict}"]
     return "\n".join(lines)
