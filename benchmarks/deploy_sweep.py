@@ -1,0 +1,177 @@
+"""The exported file in the loop on the real driver, swept (issue 32, item 3): how much
+sensor latency and encoder miscalibration an exported policy stands.
+
+    python benchmarks/deploy_sweep.py --out benchmarks/results/deploy/NAME \
+        --label "MARACollisionOrientRandomTarget, ..." policy_1000.onnx policy_1001.onnx \
+        [--velocities 0.3 0.5] [--latencies 0 1 2 3] [--calibrations 0 0.001 0.002 0.004] \
+        [--episodes 1000] [--seed 1000] [-- EXTRA EVALUATE FLAGS]
+
+For each file and servo speed, `python -m mara_mjx.evaluate FILE --driver real --velocity
+V --randomize --tolerance_mm 0 --episodes N --seed S` (every episode to the horizon, each
+its own physics draw and, on a random-target task, its own held-out pose), as a user runs
+it, once with the randomisation's defaults (the "randomised" row), then with the sensor
+latency fixed at each of `--latencies` steps (`--latency_steps L L`), then with the joint
+zero offsets drawn within each of `--calibrations` rad (`--calibration_offset C`), the
+other parameters randomised as by default. Per cell, from the report's episodes: the
+fractions within 5 mm and 2 deg and within 1 mm and 1 deg (degrees only on tasks with an
+orientation), per-axis mean, p95 and worst (mm; deg), and the fraction of episodes with a
+collision. Writes <out>/deploy_sweep.json (every cell, the commands, versions),
+<out>/deploy_sweep.md (the table) and <out>/deploy_sweep.png (within 5 mm against latency
+and calibration, one line per file and speed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+BARS = ((5.0, 2.0), (1.0, 1.0))  # (mm, deg): the issue's "within 5 mm / 2 deg" and "1 mm / 1 deg"
+
+
+def cells(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
+    """(name, evaluate flags) of every sweep cell but the speed."""
+    out = [("randomised", [])]
+    out += [(f"latency {k}", ["--latency_steps", str(k), str(k)]) for k in args.latencies]
+    out += [(f"calibration {c:g} rad", ["--calibration_offset", str(c)]) for c in args.calibrations]
+    return out
+
+
+def metrics(report: dict) -> dict:
+    """The cell's numbers from an evaluate report's episodes (module docstring)."""
+    episodes = report["episodes"]
+    pos = np.array([e["position_error_mm"] for e in episodes], np.float64)
+    orientation = report["env_name"].find("Orient") >= 0
+    ori = np.array([e["orientation_error_deg"] for e in episodes], np.float64)
+    out = {"episodes": len(episodes)}
+    for mm, deg in BARS:
+        ok = np.all(pos <= mm, axis=1)
+        if orientation:
+            ok &= np.all(ori <= deg, axis=1)
+        out[f"within_{mm:g}mm" + (f"_{deg:g}deg" if orientation else "")] = float(np.mean(ok))
+    axes = {"position_mm": pos, **({"orientation_deg": ori} if orientation else {})}
+    for name, x in axes.items():
+        out[name] = {"mean": x.mean(0).tolist(), "p95": np.percentile(x, 95, axis=0).tolist(),
+                     "worst": x.max(0).tolist()}  # fmt: skip
+    out["colliding"] = float(np.mean([e["collisions"] > 0 for e in episodes]))
+    return out
+
+
+def evaluate(policy: str, velocity: float, flags: list[str], args, tmp: Path) -> tuple:
+    report = tmp / "report.json"
+    argv = [sys.executable, "-m", "mara_mjx.evaluate", policy, "--driver", "real",
+            "--velocity", str(velocity), "--randomize", "--tolerance_mm", "0",
+            "--episodes", str(args.episodes), "--seed", str(args.seed), *flags, *args.extra,
+            "--json", str(report), "--overwrite"]  # fmt: skip
+    start = time.perf_counter()
+    done = subprocess.run(argv, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(argv)} failed:\n{done.stdout[-2000:]}\n{done.stderr[-3000:]}")
+    data = json.loads(report.read_text())
+    command = "python " + " ".join(argv[1:-3])  # without the temporary --json
+    return command, time.perf_counter() - start, data
+
+
+def table(rows: list[dict], orientation: bool) -> str:
+    bar5, bar1 = ("5 mm / 2 deg", "1 mm / 1 deg") if orientation else ("5 mm", "1 mm")
+    head = ["policy", "rad/s", "condition", f"within {bar5}", f"within {bar1}",
+            "position mean (mm)", "p95", "worst", "colliding"]  # fmt: skip
+    if orientation:
+        head[-1:-1] = ["orientation mean (deg)", "worst (deg)"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+
+    def axes(x):
+        return " / ".join(f"{v:.2f}" for v in x)
+
+    for r in rows:
+        m = r["metrics"]
+        k5, k1 = (k for k in m if k.startswith("within_"))
+        cells_ = [Path(r["policy"]).name, f"{r['velocity']:g}", r["condition"],
+                  f"{100 * m[k5]:.1f}%", f"{100 * m[k1]:.1f}%", axes(m["position_mm"]["mean"]),
+                  axes(m["position_mm"]["p95"]), axes(m["position_mm"]["worst"])]  # fmt: skip
+        if orientation:
+            cells_ += [axes(m["orientation_deg"]["mean"]), axes(m["orientation_deg"]["worst"])]
+        cells_.append(f"{100 * m['colliding']:.1f}%")
+        lines.append("| " + " | ".join(cells_) + " |")
+    return "\n".join(lines)
+
+
+def figure(path: Path, rows: list[dict], args) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_l, ax_c) = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+    for policy in args.policies:
+        for v in args.velocities:
+            mine = [r for r in rows if r["policy"] == policy and r["velocity"] == v]
+
+            def within5(prefix):
+                return [100 * next(iter(r["metrics"][k] for k in r["metrics"]
+                                        if k.startswith("within_5")))
+                        for r in mine if r["condition"].startswith(prefix)]  # fmt: skip
+
+            label = f"{Path(policy).stem}, {v:g} rad/s"
+            ax_l.plot(args.latencies, within5("latency"), "o-", label=label)
+            ax_c.plot([1000 * c for c in args.calibrations], within5("calibration"), "o-")
+    ax_l.set(xlabel="sensor latency (control steps)", ylabel="episodes within 5 mm (%)")
+    ax_c.set(xlabel="joint zero offset half-width (mrad)")
+    ax_l.legend(fontsize=7)
+    fig.suptitle(args.label, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    extra = argv[argv.index("--") + 1 :] if "--" in argv else []
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("policies", nargs="+", help="exported files (.onnx or .npz)")
+    parser.add_argument("--out", required=True, type=Path)
+    parser.add_argument("--label", default="")
+    parser.add_argument("--velocities", type=float, nargs="+", default=[0.3, 0.5])
+    parser.add_argument("--latencies", type=int, nargs="+", default=[0, 1, 2, 3])
+    parser.add_argument("--calibrations", type=float, nargs="+",
+                        default=[0.0, 0.001, 0.002, 0.004])  # fmt: skip
+    parser.add_argument("--episodes", type=int, default=1000)
+    parser.add_argument("--seed", type=int, default=1000)
+    args = parser.parse_args(argv[: argv.index("--")] if "--" in argv else argv)
+    args.extra = extra
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for policy in args.policies:
+            for v in args.velocities:
+                for name, flags in cells(args):
+                    command, seconds, report = evaluate(policy, v, flags, args, Path(tmp))
+                    rows.append({"policy": policy, "velocity": v, "condition": name,
+                                 "command": command, "seconds": round(seconds, 1),
+                                 "env_name": report["env_name"], "metrics": metrics(report)})  # fmt: skip
+                    print(f"{Path(policy).name} {v:g} rad/s {name}: {rows[-1]['metrics']}",
+                          flush=True)  # fmt: skip
+                    versions = report.get("versions")
+    orientation = "orientation_deg" in rows[0]["metrics"]
+    text = table(rows, orientation)
+    this = "python benchmarks/deploy_sweep.py " + " ".join(argv)
+    head = (f"# {args.label}\n\n`{this}` ({platform.platform()}, CPU; evaluate's versions: "
+            f"{versions}). Every episode to the horizon, on the real driver with randomised "
+            "physics; each condition changes one randomised parameter.\n")  # fmt: skip
+    (args.out / "deploy_sweep.md").write_text(head + "\n" + text + "\n")
+    (args.out / "deploy_sweep.json").write_text(json.dumps(
+        {"command": this, "label": args.label, "platform": platform.platform(),
+         "versions": versions, "rows": rows}, indent=1))  # fmt: skip
+    figure(args.out / "deploy_sweep.png", rows, args)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
