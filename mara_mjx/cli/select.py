@@ -172,6 +172,7 @@ def _main(args: argparse.Namespace) -> int:
         "command": PROG,
         "run": str(top),
         "env_name": meta["env_name"],
+        "orientation": orientation,
         "settings": {
             k: list(v) if isinstance(v, tuple) else v for k, v in vars(settings).items()
         },  # fmt: skip
@@ -193,7 +194,8 @@ def markdown(report: dict[str, Any]) -> str:
     speeds = list(report["ranking"][0]["velocities"])
     head = ["rank", "seed"]
     for v in speeds:
-        head += [f"{v} rad/s: within 5 mm", "colliding", "mean error (mm)"]
+        bar = "within 5 mm and 5 deg" if report["orientation"] else "within 5 mm"
+        head += [f"{v} rad/s: {bar}", "colliding", "mean error (mm)"]
     settings = report["settings"]
     lines = [
         f"{report['env_name']}, run {report['run']}: the real driver with randomised physics, "
@@ -215,8 +217,8 @@ def markdown(report: dict[str, Any]) -> str:
         ""
         if worst >= 0.99
         else (
-            f" (warning: it ends within 5 mm in only {100 * worst:.1f}% of the episodes at its "
-            "worst speed; train more seeds)"
+            f" (warning: it ends within 5 mm (5 deg) in only {100 * worst:.1f}% of the "
+            "episodes at its worst speed; train more seeds)"
         )
     )
     lines += ["", f"chosen: seed {report['chosen']}, {report['chosen_folder']}{verdict}"]
