@@ -48,7 +48,7 @@ def metrics(report: dict) -> dict:
     """The cell's numbers from an evaluate report's episodes (module docstring)."""
     episodes = report["episodes"]
     pos = np.array([e["position_error_mm"] for e in episodes], np.float64)
-    orientation = report["env_name"].find("Orient") >= 0
+    orientation = "Orient" in report["env_name"]  # the tasks with an orientation target
     ori = np.array([e["orientation_error_deg"] for e in episodes], np.float64)
     out = {"episodes": len(episodes)}
     for mm, deg in BARS:
@@ -152,11 +152,11 @@ def main(argv: list[str] | None = None) -> int:
             for v in args.velocities:
                 for name, flags in cells(args):
                     command, seconds, report = evaluate(policy, v, flags, args, Path(tmp))
-                    rows.append({"policy": policy, "velocity": v, "condition": name,
-                                 "command": command, "seconds": round(seconds, 1),
-                                 "env_name": report["env_name"], "metrics": metrics(report)})  # fmt: skip
-                    print(f"{Path(policy).name} {v:g} rad/s {name}: {rows[-1]['metrics']}",
-                          flush=True)  # fmt: skip
+                    row = {"policy": policy, "velocity": v, "condition": name,
+                           "command": command, "seconds": round(seconds, 1),
+                           "env_name": report["env_name"], "metrics": metrics(report)}  # fmt: skip
+                    rows.append(row)
+                    print(f"{Path(policy).name} {v:g} rad/s {name}: {row['metrics']}", flush=True)
                     versions = report.get("versions")
     orientation = "orientation_deg" in rows[0]["metrics"]
     text = table(rows, orientation)

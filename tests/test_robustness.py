@@ -209,3 +209,28 @@ def test_select_trains_k_seeds_per_judged_seed_and_keeps_the_one_that_transfers(
         "colliding": 0.0,
         "error_mm": 1.0,
     }
+
+
+def test_deploy_sweep_reads_an_evaluate_report():
+    """benchmarks/deploy_sweep.py's numbers from a report's episodes: the two bars (mm and,
+    on an Orient task, deg together), per-axis mean / p95 / worst, colliding episodes."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "deploy_sweep.py"
+    spec = importlib.util.spec_from_file_location("deploy_sweep", path)
+    sweep = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(sweep)
+
+    def episode(mm, deg, collisions=0):
+        return {"position_error_mm": [mm, 0.1, 0.1], "orientation_error_deg": [deg, 0, 0],
+                "collisions": collisions}  # fmt: skip
+
+    eps = [episode(0.5, 0.5), episode(3.0, 0.5, 2), episode(3.0, 3.0), episode(9.0, 0.1)]
+    m = sweep.metrics({"env_name": "MARACollisionOrientRandomTarget", "episodes": eps})
+    assert m["within_5mm_2deg"] == 0.5  # 3.0 deg and 9.0 mm miss
+    assert m["within_1mm_1deg"] == 0.25
+    assert m["position_mm"]["worst"] == [9.0, 0.1, 0.1] and m["colliding"] == 0.25
+    assert m["position_mm"]["mean"][0] == pytest.approx(3.875)
+    plain = sweep.metrics({"env_name": "MARACollision", "episodes": eps})
+    assert plain["within_5mm"] == 0.75 and "orientation_deg" not in plain
