@@ -18,9 +18,9 @@ one row per seed and the chosen seed's folder, and writes the ranking as JSON an
 markdown (default <RUN>/select-real.json and .md; a later run of this command replaces
 them, any other existing file only with --overwrite).
 
-Why: a policy trained on the fast train driver either transfers to the servos or fails
-completely (stops short, or collides in every episode), a chance of about one in five
-per seed for the recipe above; which seeds fail changes with every recipe. Training 4
+Why: a policy trained on the fast train driver either transfers to the servos or fails,
+most often completely (stops short, or collides in every episode), a chance of about one
+in five per seed for the recipe above; which seeds fail changes with every recipe. Training 4
 seeds in one program and keeping the best is the measured recipe (the robustness study's
 `--select 4`, the same judgement and ranking: `mara_mjx.bench.robustness`).
 
