@@ -1,7 +1,10 @@
 """The robustness study's parts that need no training: recipes, the failure rule, the
-statistics across seeds (the study itself runs with --quick in test_benchmark.py)."""
+statistics across seeds, the selection (and `select`'s checks of its input, and
+deploy_sweep's numbers); the study itself runs with --quick in test_benchmark.py."""
 
 from __future__ import annotations
+
+import re
 
 import numpy as np
 import pytest
@@ -234,3 +237,23 @@ def test_deploy_sweep_reads_an_evaluate_report():
     assert m["position_mm"]["mean"][0] == pytest.approx(3.875)
     plain = sweep.metrics({"env_name": "MARACollision", "episodes": eps})
     assert plain["within_5mm"] == 0.75 and "orientation_deg" not in plain
+
+
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--draws", "0"], "--draws must be at least 1"),
+        (["--velocities", "0.3", "11"], "--velocities must be in (0, 10]"),
+        (["--velocities", "0.3", "0.3"], "--velocities must be distinct"),
+        (["--seed", "-1"], "--seed must be >= 0"),
+        (["--collision_guard_mm", "-2"], "--collision_guard_mm must be -1 or >= 0"),
+    ],
+)
+def test_select_cli_names_bad_input(tmp_path, flags, message):
+    """`python -m mara_mjx.select` refuses bad settings by name before loading anything."""
+    from mara_mjx.cli import select
+    from mara_mjx.cli.common import UserError
+
+    with pytest.raises(UserError, match=re.escape(message)):
+        select.main([str(tmp_path), *flags])
+    assert not list(tmp_path.iterdir())  # nothing written
