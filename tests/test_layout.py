@@ -98,13 +98,13 @@ def test_ground_floor_imports_nothing_above_it():
 
 
 # the command shims (`python -m mara_mjx.train` ...), the XLA flag and the config machinery
-ROOT_MODULES = {"_xla", "config", "train", "evaluate", "select", "play", "export", "benchmark",
+ROOT_MODULES = {"_xla", "config", "train", "evaluate", "pick", "play", "export", "benchmark",
                 "plots"}  # fmt: skip
 # the shims' targets: each CLI's real module, in its room
 COMMANDS = {
     "train": "cli.train",
     "evaluate": "cli.evaluate",
-    "select": "cli.select",
+    "pick": "cli.pick",
     "play": "cli.play",
     "export": "cli.export",
     "benchmark": "cli.benchmark",

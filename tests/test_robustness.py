@@ -1,5 +1,5 @@
 """The robustness study's parts that need no training: recipes, the failure rule, the
-statistics across seeds, the selection (and `select`'s checks of its input, and
+statistics across seeds, the selection (and `pick`'s checks of its input, and
 deploy_sweep's numbers); the study itself runs with --quick in test_benchmark.py."""
 
 from __future__ import annotations
@@ -249,11 +249,11 @@ def test_deploy_sweep_reads_an_evaluate_report():
         (["--collision_guard_mm", "-2"], "--collision_guard_mm must be -1 or >= 0"),
     ],
 )
-def test_select_cli_names_bad_input(tmp_path, flags, message):
-    """`python -m mara_mjx.select` refuses bad settings by name before loading anything."""
-    from mara_mjx.cli import select
+def test_pick_cli_names_bad_input(tmp_path, flags, message):
+    """`python -m mara_mjx.pick` refuses bad settings by name before loading anything."""
+    from mara_mjx.cli import pick
     from mara_mjx.cli.common import UserError
 
     with pytest.raises(UserError, match=re.escape(message)):
-        select.main([str(tmp_path), *flags])
+        pick.main([str(tmp_path), *flags])
     assert not list(tmp_path.iterdir())  # nothing written

@@ -172,8 +172,8 @@ def test_a_seeds_run_resumes_from_its_newest_common_checkpoint(seeds_run, cli_en
         assert [int(r["update"]) for r in rows] == [1, 2]
 
 
-def test_select_cli_ranks_the_seeds_on_the_real_driver(seeds_run, cli_env, tmp_path):
-    """`python -m mara_mjx.select RUN_OF_SEEDS` as the sim-to-real recipe runs it (tiny:
+def test_pick_cli_ranks_the_seeds_on_the_real_driver(seeds_run, cli_env, tmp_path):
+    """`python -m mara_mjx.pick RUN_OF_SEEDS` as the sim-to-real recipe runs it (tiny:
     2 draws at one speed): every seed judged on the real driver with randomised physics,
     ranked by the study's selection_score, the first named as the one to deploy; its own
     ranking is recognised (a rerun replaces it), a file it did not write is refused,
@@ -183,7 +183,7 @@ def test_select_cli_ranks_the_seeds_on_the_real_driver(seeds_run, cli_env, tmp_p
     out, _ = seeds_run
     report_path = tmp_path / "rank.json"
     flags = ["--velocities", "0.3", "--draws", "2", "--seed", "3", "--json", str(report_path)]
-    proc = run_module(cli_env, "mara_mjx.select", str(out), *flags)
+    proc = run_module(cli_env, "mara_mjx.pick", str(out), *flags)
     assert proc.returncode == 0, proc.stderr[-4000:]
     report = json.loads(report_path.read_text())
     ranking = report["ranking"]
@@ -201,14 +201,14 @@ def test_select_cli_ranks_the_seeds_on_the_real_driver(seeds_run, cli_env, tmp_p
     assert f"chosen: seed {report['chosen']}, {out}/seed_{report['chosen']}" in text
     assert text.splitlines()[0] in proc.stdout
 
-    from mara_mjx.cli.select import is_ranking  # a rerun replaces its own ranking
+    from mara_mjx.cli.pick import is_ranking  # a rerun replaces its own ranking
 
     assert is_ranking(report_path) and not is_ranking(out / "seeds.json")
 
     mine = tmp_path / "mine.json"
     mine.write_text('{"keep": 1}')
-    refused = run_module(cli_env, "mara_mjx.select", str(out), "--json", str(mine))
+    refused = run_module(cli_env, "mara_mjx.pick", str(out), "--json", str(mine))
     assert refused.returncode == 2 and "exists and was not written by" in refused.stderr
     assert mine.read_text() == '{"keep": 1}'
-    single = run_module(cli_env, "mara_mjx.select", str(out / "seed_0"))
+    single = run_module(cli_env, "mara_mjx.pick", str(out / "seed_0"))
     assert single.returncode == 2 and "not the folder of a several-seed run" in single.stderr

@@ -7,7 +7,7 @@ and hold, fixed-target tasks), `judge_targets` (held-out poses, random-target ta
 `judge_real` (the real driver on randomised physics) return one row per seed, each
 judgement's numbers under its name (`pose_summary` for the last two); `failure` says why
 a seed misses its task's bar; `select_seeds` keeps the best of each group of seeds on the
-real driver (the study's --select and `python -m mara_mjx.select`). `config` is the
+real driver (the study's --select and `python -m mara_mjx.pick`). `config` is the
 study's `RobustnessConfig` (typed `Any` here: that module imports this one).
 """
 
@@ -202,7 +202,7 @@ def select_seeds(
 ) -> tuple[list[int], list[dict[str, Any]]]:
     """(indexes of the chosen seeds, one record each) of the seeds' selection run (judge_real
     rows): the best of each group of k consecutive seeds by selection_score
-    (bench.robustness --select; `python -m mara_mjx.select` with one group)."""
+    (bench.robustness --select; `python -m mara_mjx.pick` with one group)."""
     picks, records = [], []
     for start in range(0, len(seeds), k):
         group = list(range(start, min(start + k, len(seeds))))

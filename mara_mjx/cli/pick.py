@@ -1,9 +1,9 @@
 """Keep the seed of a several-seed run that transfers to the real arm's servos:
-python -m mara_mjx.select RUN_OF_SEEDS
+python -m mara_mjx.pick RUN_OF_SEEDS
 
     python -m mara_mjx.train --env MARACollision --preset default --randomize \\
         --train_clearance_penalty 1 --seeds 4
-    python -m mara_mjx.select runs/<that run>           # prints the seed folder to deploy
+    python -m mara_mjx.pick runs/<that run>           # prints the seed folder to deploy
     python -m mara_mjx.export runs/<that run>/seed_<s> policy.onnx
 
 Every seed's newest checkpoint of a `train --seeds N` run runs on the real driver
@@ -15,7 +15,7 @@ all seeds in one vmapped program per velocity. The seeds are ranked, best first,
 smallest fraction of episodes ending within 5 mm (and 5 deg) over the velocities, then
 the largest fraction of episodes with a collision, then the mean final error. It prints
 one row per seed and the chosen seed's folder, and writes the ranking as JSON and
-markdown (default <RUN>/select-real.json and .md; a later run of this command replaces
+markdown (default <RUN>/pick-real.json and .md; a later run of this command replaces
 them, any other existing file only with --overwrite).
 
 Why: a policy trained on the fast train driver either transfers to the servos or fails,
@@ -47,13 +47,13 @@ from mara_mjx.cli.common import (
 )
 from mara_mjx.runtime import files, outputs, runs
 
-PROG = "mara_mjx.select"
-REPORT = "select-real.json"
+PROG = "mara_mjx.pick"
+REPORT = "pick-real.json"
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m mara_mjx.select",
+        prog="python -m mara_mjx.pick",
         description="Rank the seeds of a `train --seeds N` run on the real driver with "
         "randomised physics and name the one to deploy.",
         allow_abbrev=False,
