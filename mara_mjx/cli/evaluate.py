@@ -118,14 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    try:
-        with runs.sigterm_as_interrupt():
-            return _main(args)
-    except files.WriteError as e:
-        raise UserError(f"cannot write {e.filename!r}: {e.strerror}") from e
-    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: nothing was written
-        print(f"\n{PROG}: interrupted; no report was written", file=sys.stderr)
-        return runs.exit_status()
+    return runs.run_reporting(lambda: _main(args), PROG, "report")
 
 
 def _main(args: argparse.Namespace) -> int:

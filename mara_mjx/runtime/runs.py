@@ -34,7 +34,7 @@ import signal
 import subprocess
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -92,6 +92,23 @@ def sigterm_as_interrupt() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def run_reporting(command: Callable[[], int], prog: str, what: str) -> int:
+    """`command()` of a CLI that writes one report at its end (evaluate's, pick's): SIGTERM
+    handled as Ctrl-C (`sigterm_as_interrupt`), either ending it with one line
+    ("interrupted; no {what} was written") and the signal's exit status; a failed write
+    (a full disk) a UserError naming the file."""
+    from mara_mjx.cli.common import UserError
+
+    try:
+        with sigterm_as_interrupt():
+            return command()
+    except files.WriteError as e:
+        raise UserError(f"cannot write {e.filename!r}: {e.strerror}") from e
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: nothing was written
+        print(f"\n{prog}: interrupted; no {what} was written", file=sys.stderr)
+        return exit_status()
 
 
 def _raise_interrupt(signum, frame) -> None:
