@@ -139,6 +139,7 @@ def test_pose_summary_keeps_the_worst_episodes_to_replay():
     targets = SimpleNamespace(pos=rng.uniform(size=(40, 3)), quat=rng.uniform(size=(40, 4)))
     out = pose_summary(result, True, targets)
     assert out["within_5"] == pytest.approx(39 / 40) and out["within_1"] == pytest.approx(38 / 40)
+    assert out["within_5mm_2deg"] == pytest.approx(38 / 40)  # the 3 deg yaw misses this bar
     assert out["episodes_colliding"] == pytest.approx(2 / 40)
     worst = out["worst_episodes"]
     assert len(worst) == WORST_EPISODES and [w["episode"] for w in worst[:2]] == [7, 12]
@@ -212,6 +213,13 @@ def test_select_trains_k_seeds_per_judged_seed_and_keeps_the_one_that_transfers(
         "colliding": 0.0,
         "error_mm": 1.0,
     }
+    # on a task with an orientation, the ranking's bar is 5 mm and 2 deg
+    a, b = row(1.0, 1.0, 0.5), row(1.0, 1.0, 0.9)
+    for r in a["real"].values():
+        r["within_5mm_2deg"] = 0.8  # within 5 deg, not within 2
+    for r in b["real"].values():
+        r["within_5mm_2deg"] = 1.0
+    assert select_seeds([1, 2], [a, b], 2)[0] == [1]
 
 
 def test_deploy_sweep_reads_an_evaluate_report():

@@ -1,21 +1,34 @@
 #!/bin/bash
-# GPU driver, written for the next device session and NOT YET RUN (issue 32 item 3, issue
-# 31's random-target row; the plan at the end of NOTES section 41): MARACollisionOrient-
-# RandomTarget's CLI preset with randomised physics and the clearance margin, 64 fresh
-# seeds (1100-1163) in one program, kept 1 of each 4 on the real driver with randomised
-# physics (selection seed 1001), the 16 picks judged on 1,000 held-out poses (train
-# driver) and on the real driver at 0.3 and 0.5 rad/s (evaluation seed 1000), without the
-# rate limit. Estimated 20-25 minutes on an H200: alone on one machine. Launch with setsid
-# and follow with poll.sh, as select_41.sh.
+# GPU driver (issue 32 item 3, issue 31's random-target row; the plan at the end of NOTES
+# section 41): MARACollisionOrientRandomTarget's CLI preset with randomised physics and the
+# clearance margin, seeds trained in one program, kept 1 of each 4 on the real driver with
+# randomised physics (selection seed 1001; ranked by 5 mm and 2 deg), the picks judged on
+# 1,000 held-out poses (train driver) and on the real driver at 0.3 and 0.5 rad/s
+# (evaluation seed 1000), without the rate limit.
+#   bash mcort_42.sh sel OFFSET   8 judged seeds = 32 candidates from OFFSET (1100, 1132:
+#                                 the 16 picks of 1100-1163 in two halves, each well inside
+#                                 one machine's 30 minutes)
+#   bash mcort_42.sh plain        the plain CLI preset (no randomisation, no margin, no
+#                                 selection), 16 seeds from 1100, judged the same way
+# Each run's results go to /tmp/res/NAME.tgz and the picks' (or seeds') config and newest
+# checkpoint to /tmp/res/ck_NAME.tgz. Launch with setsid and follow with poll.sh.
 cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
+run() {  # NAME RECIPE FLAGS...
+  local n=$1 recipe=$2
+  shift 2
+  python -m mara_mjx.benchmark robustness --eval_seed 1000 \
+    --tasks MARACollisionOrientRandomTarget --recipes "$recipe" \
+    --real_driver --rate_limit false "$@" --out /tmp/res/$n --work_dir /tmp/work/$n \
+    > /tmp/res/$n.log 2>&1
+  echo "$n DONE $?" >> /tmp/res/studies.log
+  tar czf /tmp/res/$n.tgz.part -C /tmp/res $n $n.log && mv /tmp/res/$n.tgz.part /tmp/res/$n.tgz
+  keep "$(ls -d /tmp/work/$n/runs/*/ | head -1)" /tmp/res/ck_$n.tgz
+}
 rm -f /tmp/res/studies.log /tmp/res/sent
-n=mcort_sel4
-python -m mara_mjx.benchmark robustness --seeds 16 --seed_offset 1100 --eval_seed 1000 \
-  --tasks MARACollisionOrientRandomTarget --recipes "cli --randomize --train_clearance_penalty 1" \
-  --real_driver --rate_limit false --select 4 --out /tmp/res/$n --work_dir /tmp/work/$n \
-  > /tmp/res/$n.log 2>&1
-echo "$n DONE $?" >> /tmp/res/studies.log
-tar czf /tmp/res/$n.tgz.part -C /tmp/res $n $n.log && mv /tmp/res/$n.tgz.part /tmp/res/$n.tgz
-keep "$(ls -d /tmp/work/$n/runs/*/ | head -1)" /tmp/res/ck_$n.tgz
+case $1 in
+  sel) run mcort_sel4_$2 "cli --randomize --train_clearance_penalty 1" --seeds 8 --seed_offset "$2" --select 4 ;;
+  plain) run mcort_plain "cli" --seeds 16 --seed_offset 1100 ;;
+  *) echo "usage: mcort_42.sh sel OFFSET | plain" >&2; exit 2 ;;
+esac
 echo DRIVER_DONE >> /tmp/res/studies.log

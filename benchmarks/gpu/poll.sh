@@ -16,5 +16,5 @@ while :; do
   sleep 10
 done
 tail -n 3 /tmp/res/*.log 2>/dev/null | tail -n 30
-for p in /tmp/work/*/runs/*/seed_1016/progress.csv; do [ -e "$p" ] && echo "$p: $(tail -n 1 "$p" | cut -d, -f1-4)"; done
+for p in $(ls /tmp/work/*/runs/*/seed_*/progress.csv 2>/dev/null | head -n 1); do echo "$p: $(tail -n 1 "$p" | cut -d, -f1-4)"; done
 nvidia-smi --query-gpu=name,utilization.gpu,memory.used --format=csv,noheader

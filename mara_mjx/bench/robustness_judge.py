@@ -100,6 +100,8 @@ def pose_summary(result: Any, orientation: bool, poses: Any = None) -> dict[str,
     errors = np.concatenate(ok, 1)
     for t in (5.0, 1.0):
         out[f"within_{t:g}"] = float(np.mean(np.all(errors <= t, axis=1)))
+    if orientation:  # the deployment bar of issue 32: 5 mm and 2 deg
+        out["within_5mm_2deg"] = float(np.mean(np.all(pos <= 5.0, 1) & np.all(ori <= 2.0, 1)))
     collisions = np.asarray(result.collisions)
     out["episodes_colliding"] = float(np.mean(collisions > 0))
     worst = []
@@ -181,9 +183,10 @@ def failure(row: dict[str, Any], task: str, config: Any) -> list[str]:
 
 
 def selection_numbers(row: dict[str, Any]) -> dict[str, dict[str, float]]:
-    """Per velocity of a judge_real row: the fraction of episodes within 5 mm (5 deg),
-    the fraction with a collision and the mean error (mm, over the axes)."""
-    return {v: {"within_5": r["within_5"], "colliding": r["episodes_colliding"],
+    """Per velocity of a judge_real row: the fraction of episodes within 5 mm (and, on
+    a task with an orientation, 2 deg: the deployment bar), the fraction with a collision
+    and the mean error (mm, over the axes)."""
+    return {v: {"within_5": r.get("within_5mm_2deg", r["within_5"]), "colliding": r["episodes_colliding"],
                 "error_mm": float(np.mean(r["position_mm"]["mean"]))}
             for v, r in row["real"].items()}  # fmt: skip
 

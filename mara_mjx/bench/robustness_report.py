@@ -55,6 +55,7 @@ METRICS: tuple[tuple[str, tuple[str, ...], str, bool], ...] = (
 )
 REAL_METRICS = (
     ("within 5 mm(/deg)", ("within_5",), "fraction", False),
+    ("within 5 mm and 2 deg", ("within_5mm_2deg",), "fraction", False),
     ("within 1 mm(/deg)", ("within_1",), "fraction", False),
     ("position mean", ("position_mm", "mean"), "mm", True),
     ("colliding", ("episodes_colliding",), "fraction", True),

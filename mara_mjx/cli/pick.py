@@ -12,7 +12,7 @@ physics (`RandomizeConfig`'s defaults: masses, friction, gains, joint zero offse
 noise, latency), `--draws` episodes per velocity, each its own physics draw (and, on a
 random-target task, its own held-out pose) from `--seed`, every episode to the horizon;
 all seeds in one vmapped program per velocity. The seeds are ranked, best first, by the
-smallest fraction of episodes ending within 5 mm (and 5 deg) over the velocities, then
+smallest fraction of episodes ending within 5 mm (and 2 deg) over the velocities, then
 the largest fraction of episodes with a collision, then the mean final error. It prints
 one row per seed and the chosen seed's folder, and writes the ranking as JSON and
 markdown (default <RUN>/pick-real.json and .md; a later run of this command replaces
@@ -187,7 +187,7 @@ def markdown(report: dict[str, Any]) -> str:
     speeds = list(report["ranking"][0]["velocities"])
     head = ["rank", "seed"]
     for v in speeds:
-        bar = "within 5 mm and 5 deg" if report["orientation"] else "within 5 mm"
+        bar = "within 5 mm and 2 deg" if report["orientation"] else "within 5 mm"
         head += [f"{v} rad/s: {bar}", "colliding", "mean error (mm)"]
     settings = report["settings"]
     lines = [
@@ -210,7 +210,7 @@ def markdown(report: dict[str, Any]) -> str:
         ""
         if worst >= 0.99
         else (
-            f" (warning: it ends within 5 mm (5 deg) in only {100 * worst:.1f}% of the "
+            f" (warning: it ends within 5 mm (2 deg) in only {100 * worst:.1f}% of the "
             "episodes at its worst speed; train more seeds)"
         )
     )
