@@ -138,8 +138,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", required=True, type=Path)
     parser.add_argument("--label", default="")
     parser.add_argument("--velocities", type=float, nargs="+", default=[0.3, 0.5])
-    parser.add_argument("--latencies", type=int, nargs="+", default=[0, 1, 2, 3])
-    parser.add_argument("--calibrations", type=float, nargs="+",
+    parser.add_argument("--latencies", type=int, nargs="*", default=[0, 1, 2, 3])
+    parser.add_argument("--calibrations", type=float, nargs="*",
                         default=[0.0, 0.001, 0.002, 0.004])  # fmt: skip
     parser.add_argument("--episodes", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=1000)

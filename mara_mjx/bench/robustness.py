@@ -110,6 +110,9 @@ class RobustnessConfig(BenchConfig):
     collision_guard_mm: float = -1.0
     """Every judgement: the deployed policy's collision guard (EvalConfig.collision_guard_mm;
     -1: as each checkpoint was trained; >= 0 replaces it, 0: off)."""
+    plan_steps: int = -1
+    """Every judgement: the deployed policy's imagined train-driver steps
+    (EvalConfig.plan_steps; -1: as each checkpoint was trained; >= 0 replaces it, 0: off)."""
     fail_fraction: float = 0.99
     """targets and real: a seed fails below this fraction of episodes within 5 mm (5 deg)."""
     bootstrap: int = 2000
@@ -155,6 +158,7 @@ class RobustnessConfig(BenchConfig):
         check_int("eval_seed", self.eval_seed, minimum=0)
         check_int("parallel", self.parallel, minimum=0)
         check_int("select_seed", self.select_seed, minimum=-1)
+        check_int("plan_steps", self.plan_steps, minimum=-1)
         if self.selection_seed == self.eval_seed:
             raise ValueError(
                 f"select_seed={self.select_seed} is eval_seed: the seeds would be chosen on "

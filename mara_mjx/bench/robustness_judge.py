@@ -50,7 +50,7 @@ def judge_fixed(env: Any, policy: Any, n: int, config: Any, orientation: bool):
 
     paper_cfg = EvalConfig(
         episodes=config.episodes, seed=config.eval_seed,
-        collision_guard_mm=config.collision_guard_mm,
+        collision_guard_mm=config.collision_guard_mm, plan_steps=config.plan_steps,
     )  # fmt: skip
     hold_cfg = paper_cfg.replace(tolerance_mm=0.0)
     paper = _vmapped(env, paper_cfg, None, policy, n)
@@ -132,7 +132,8 @@ def judge_targets(env: Any, policy: Any, n: int, config: Any, orientation: bool)
     from mara_mjx.ppo.target_eval import DEFAULTS
 
     eval_cfg = DEFAULTS.replace(
-        episodes=config.poses, seed=config.eval_seed, collision_guard_mm=config.collision_guard_mm
+        episodes=config.poses, seed=config.eval_seed, collision_guard_mm=config.collision_guard_mm,
+        plan_steps=config.plan_steps,
     )
     params, poses = held_out_params(env, eval_cfg)
     return [{"targets": pose_summary(r, orientation, poses)}
@@ -148,6 +149,7 @@ def judge_real(meta: dict[str, Any], policy: Any, n: int, config: Any, orientati
     eval_cfg = EvalConfig(
         episodes=config.draws, seed=config.eval_seed, tolerance_mm=0.0,
         rate_limit=config.rate_limit, collision_guard_mm=config.collision_guard_mm,
+        plan_steps=config.plan_steps,
     )  # fmt: skip
     rows: list[dict[str, Any]] = [{"real": {}} for _ in range(n)]
     for v in config.velocities:

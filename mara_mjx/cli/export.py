@@ -88,6 +88,7 @@ def export_policy(
     drop_ik_finish: bool = False,
     overwrite: bool = False,
     batch: int | None = None,
+    plan_steps: int | None = None,
 ) -> Path:
     """Write the deterministic policy of `checkpoint` (a checkpoint file, or a run folder:
     its newest checkpoint) to `out_path`, atomically: .npz (numpy) or .onnx (an ONNX
@@ -97,7 +98,9 @@ def export_policy(
     by mara_mjx/deploy/ik_numpy.py; .onnx: in the graph) unless `drop_ik_finish`, which
     writes the learnt policy alone (the meta's ik_finish_dropped says so). An
     existing `out_path` is replaced only if it is an exported policy, or with
-    `overwrite`; never a checkpoint or a run folder's file (module docstring). Raises
+    `overwrite`; never a checkpoint or a run folder's file (module docstring).
+    `plan_steps`: the deployed policy's imagined train-driver steps
+    (PolicyConfig.plan_steps, deployed only; None: as trained; 0: off). Raises
     ExportError (or mara_mjx.ppo.CheckpointError, also a ValueError) with what is
     wrong."""
     import mara_mjx
@@ -126,6 +129,11 @@ def export_policy(
     source = ckpt.find_checkpoint(checkpoint)
     arrays, meta = ckpt.load_checkpoint(source)
     policy = policy_io.policy_from_checkpoint(arrays, meta)
+    if plan_steps is not None:
+        try:
+            policy = policy.replace(config=policy.config.replace(plan_steps=int(plan_steps)))
+        except ValueError as e:
+            raise ExportError(f"--plan_steps: {e}") from e
     config, ppo = policy.config.policy, policy.config.ppo
     # options whose actions need the arm's Jacobian or its contact distances, which the
     # numpy MLP does not have
@@ -133,6 +141,7 @@ def export_policy(
         "ik_prior": config.ik_prior,
         "task_space_actions": config.task_space_actions,
         "collision_guard_mm": config.collision_guard_mm,
+        "plan_steps": config.plan_steps,
     }
     jacobian = [(k, v) for k, v in options.items() if v]
     if jacobian and out_path.suffix == ".npz":
@@ -278,6 +287,13 @@ def build_parser() -> argparse.ArgumentParser:
         help=".onnx of a policy with IK rules: a static batch size (1: one arm per call, "
         "about half the latency); default any batch",
     )
+    parser.add_argument(
+        "--plan_steps",
+        type=int,
+        default=None,
+        help="the deployed policy commands the landing of this many imagined train-driver "
+        "steps (PolicyConfig.plan_steps; for a servo-driven arm; 0 off); default as trained",
+    )
     add_deprecated_alias(parser, "--drop-ik-finish", "--drop_ik_finish", PROG)
     parser.add_argument(
         "--overwrite",
@@ -300,7 +316,8 @@ def main(argv: list[str] | None = None) -> int:
             with contextlib.suppress(Exception):  # unless a backend has started already
                 jax.config.update("jax_platforms", "cpu")
         out = export_policy(
-            args.checkpoint, args.out, args.drop_ik_finish, args.overwrite, args.batch
+            args.checkpoint, args.out, args.drop_ik_finish, args.overwrite, args.batch,
+            args.plan_steps,
         )
         if out.suffix == ".onnx":
             print(f"wrote {out}: ONNX (opset 17), input obs (N, obs_size) float32, outputs "

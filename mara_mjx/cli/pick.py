@@ -45,6 +45,7 @@ from mara_mjx.cli.common import (
     parse_bool,
     run_cli,
 )
+from mara_mjx.ppo.parametrisation import MAX_PLAN_STEPS
 from mara_mjx.runtime import files, outputs, runs
 
 PROG = "mara_mjx.pick"
@@ -81,6 +82,11 @@ def build_parser() -> argparse.ArgumentParser:
         "(default), 0 off, > 0 that margin",
     )  # fmt: skip
     parser.add_argument(
+        "--plan_steps", type=int, default=-1,
+        help="the deployed policy's imagined train-driver steps (PolicyConfig.plan_steps): "
+        "-1 as each seed was trained (default), 0 off, > 0 that many",
+    )  # fmt: skip
+    parser.add_argument(
         "--json", metavar="PATH",
         help=f"where to write the JSON ranking (default: <RUN>/{REPORT}); never a "
         "checkpoint or a run folder's own file",
@@ -115,6 +121,8 @@ def check_args(args: argparse.Namespace) -> None:
         raise UserError(f"--velocities must be distinct, got {args.velocities}")
     if args.collision_guard_mm < 0 and args.collision_guard_mm != -1:
         raise UserError(f"--collision_guard_mm must be -1 or >= 0, got {args.collision_guard_mm}")
+    if not -1 <= args.plan_steps <= MAX_PLAN_STEPS:
+        raise UserError(f"--plan_steps must be -1 or in [0, {MAX_PLAN_STEPS}], got {args.plan_steps}")
 
 
 def _main(args: argparse.Namespace) -> int:
@@ -150,6 +158,7 @@ def _main(args: argparse.Namespace) -> int:
     settings = SimpleNamespace(
         draws=args.draws, eval_seed=args.seed, velocities=tuple(args.velocities),
         rate_limit=args.rate_limit, collision_guard_mm=args.collision_guard_mm,
+        plan_steps=args.plan_steps,
     )  # fmt: skip
     print(f"run: {top}, seeds {seed_ids}, env {meta['env_name']}: the real driver at "
           f"{' and '.join(f'{v:g}' for v in args.velocities)} rad/s with randomised physics, "

@@ -124,6 +124,26 @@ def build_model(
     )
     obs = check_observations(meta, 128 if batch is None else batch * max(1, 128 // batch))
     want = [np.asarray(x) for x in jax.jit(step)(obs)]
+    steps = getattr(policy.config.policy, "plan_steps", 0)
+    if steps:
+        # K imagined steps amplify float32's rounding where the plan is sensitive to its
+        # start (JAX's own jit and eager differ by up to ~2e-3 rad on 2 of 128 check
+        # observations at K = 16 on a trained random-target policy, ~1e-6 on the rest;
+        # the graph 2e-4 where that spread was 2e-5; benchmarks/NOTES.md section 42): per
+        # observation, the graph may differ from the jitted plan by the tolerance x (1 +
+        # K / 4) plus 4x JAX's own spread there
+        import jax.numpy as jnp
+
+        with jax.disable_jit():
+            eager = [np.asarray(x) for x in step(jnp.asarray(obs))]
+        spread = np.max([np.abs(a - b).max(-1) for a, b in zip(want, eager, strict=True)], 0)
+        diff = self_check(model, obs, want, batch, tolerance, tolerance * steps / 4 + 4 * spread)
+        reference = "jit; plan_steps: tolerance x (1 + K / 4) + 4x JAX's jit-eager spread"
+        meta = {**meta, "self_check": {
+            "observations": len(obs), "max_abs_diff": diff, "reference": reference,
+            "observations_over_tolerance": int(np.sum(spread > tolerance))}}  # fmt: skip
+        helper.set_model_props(model, {"mara_mjx": json.dumps(meta)})
+        return model
     try:
         diff, reference = self_check(model, obs, want, batch, tolerance), "jit"
     except OnnxGraphError as against_jit:
@@ -158,12 +178,14 @@ def self_check(
     want: list[np.ndarray],
     batch: int | None,
     tolerance: float = TOLERANCE,
+    slack: np.ndarray | None = None,
 ) -> float:
     """onnx.checker's full check, then max |onnxruntime - want| over both outputs on `obs`
     (M, obs_size), `want` the JAX step's (action, action_clipped), the graph run in chunks
     of `batch` (None: all at once). OnnxGraphError when the
     checker refuses the model, onnxruntime cannot run it, or the difference exceeds
-    `tolerance`; else the difference (rad)."""
+    `tolerance` (plus, per observation, `slack` (M,) where given); else the difference
+    (rad)."""
     import onnx
     import onnxruntime as ort
 
@@ -187,8 +209,9 @@ def self_check(
         ]
     except Exception as e:  # the checker's and onnxruntime's own error types
         raise OnnxGraphError(f"the traced graph is not a valid ONNX model: {e}") from e
-    diff = max(float(np.abs(g - w).max()) for g, w in zip(got, want, strict=True))
-    if not diff <= tolerance:
+    rows = np.max([np.abs(g - w).max(-1) for g, w in zip(got, want, strict=True)], 0)
+    diff = float(rows.max())
+    if not np.all(rows <= tolerance + (0.0 if slack is None else slack)):
         raise OnnxGraphError(
             f"the traced graph differs from the JAX policy by {diff:.2e} rad on "
             f"{len(obs)} check observations (tolerance {tolerance:.0e}): not written"

@@ -146,6 +146,8 @@ def make_evaluate(
     def evaluate(policy: Policy) -> dict[str, jax.Array]:
         if config.collision_guard_mm >= 0.0:
             policy = with_collision_guard(policy, config.collision_guard_mm)
+        if config.plan_steps >= 0:
+            policy = with_deployed(policy, "plan_steps", config.plan_steps)
         if config.rate_limit:
             policy = rate_limited(policy, max_step, env.joint_lower, env.joint_upper)
         state = reset(keys, params)
@@ -178,13 +180,20 @@ def with_collision_guard(policy: Any, mm: float) -> Any:
     """`policy` (a checkpoint's Policy) with its deployed collision guard set to `mm`
     (PolicyConfig.collision_guard_mm; 0: off); ValueError for a policy without a config
     (an exported file's, a plain function)."""
+    return with_deployed(policy, "collision_guard_mm", float(mm))
+
+
+def with_deployed(policy: Any, field: str, value: Any) -> Any:
+    """`policy` (a checkpoint's Policy) with the deployed-only PolicyConfig `field` set to
+    `value` (collision_guard_mm, plan_steps); ValueError for a policy without a config (an
+    exported file's, a plain function: it carries the rules it was exported with)."""
     config = getattr(policy, "config", None)
     if config is None or not hasattr(policy, "replace"):
         raise ValueError(
-            f"collision_guard_mm={mm} sets a checkpoint policy's deployed guard, but this "
-            "policy has no config (an exported file carries the guard it was exported with)"
+            f"{field}={value} sets a checkpoint policy's deployed rule, but this policy has "
+            "no config (an exported file carries the rules it was exported with)"
         )
-    return policy.replace(config=config.replace(collision_guard_mm=float(mm)))
+    return policy.replace(config=config.replace(**{field: value}))
 
 
 def evaluate(

@@ -26,6 +26,10 @@ from mara_mjx.config import is_int as _is_int
 IK_PRIORS = ("", "features", "residual")
 
 
+MAX_PLAN_STEPS = 64
+"""The most imagined steps PolicyConfig.plan_steps allows (each costs a policy call)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class PolicyConfig(_ConfigMixin):
     """How the Gaussian mean is formed from the actor's output (and the observation); the
@@ -147,6 +151,20 @@ class PolicyConfig(_ConfigMixin):
     trainer's network and the env are unchanged (training is the same with or without
     it). Needs relative_actions and a MARA arm. Export: .onnx traces it; .npz refuses it.
     0: off."""
+    plan_steps: int = 0
+    """Deployed only, > 0: the saved (deterministic) policy commands the posture it would
+    reach in this many steps of the train driver from the observed joints, imagined on
+    the nominal arm (each imagined step: the policy's targets clipped to the joint
+    limits, then the observation there: q, e and quat_err from the nominal chain's TCP,
+    the TCP velocity of a jump of one control period, EnvConfig.control_dt; no contact
+    check), instead of its first step. A policy trained on the train driver's jumps has
+    planned its reach only for the postures jumps visit; a servo-driven arm passes
+    through others, where its commands wander into contacts (the real-driver misses of
+    the random-target tasks: collisions, resets and again, benchmarks/NOTES.md section
+    42). Commanding the imagined landing lets the servos carry out the policy's own
+    plan; near the target the plan and the first step agree. Training is unchanged.
+    Needs a MARA arm and the default control period. Export: .onnx traces it; .npz
+    refuses it. 0: off."""
     hidden_obs: tuple[int, ...] = ()
     """Observation indices that neither network sees (set to 0 after normalisation), e.g.
     9 10 11 for the TCP velocity of MARA/MARACollision (13 14 15 for the Orient tasks)."""
@@ -186,6 +204,11 @@ class PolicyConfig(_ConfigMixin):
         self._check_ik_rules()
         _check_range("max_joint_step", self.max_joint_step, 0.0, math.pi)
         _check_range("collision_guard_mm", self.collision_guard_mm, 0.0, 100.0)
+        if not _is_int(self.plan_steps) or not 0 <= self.plan_steps <= MAX_PLAN_STEPS:
+            raise ValueError(
+                f"plan_steps must be an int in [0, {MAX_PLAN_STEPS}] (imagined train-driver "
+                f"steps; 0: off), got {self.plan_steps!r}"
+            )
         if self.collision_guard_mm > 0.0 and not self.relative_actions:
             raise ValueError(
                 f"collision_guard_mm={self.collision_guard_mm} shortens the step from the "
@@ -261,11 +284,22 @@ def resolve(policy: PolicyConfig, env: Any) -> PolicyConfig:
         ("ik_prior", policy.ik_prior, "''"),
         ("ik_finish", policy.ik_finish, "0"),
         ("collision_guard_mm", policy.collision_guard_mm, "0"),
+        ("plan_steps", policy.plan_steps, "0"),
     ):
         if value and not arm:
             raise ValueError(
                 f"{option}={value!r} needs a MARA arm's observation (q at 0, e at 6) "
                 f"and 6 joint actions; this env has neither; set {option}={off}"
+            )
+    if policy.plan_steps:
+        from mara_mjx.envs.base import EnvConfig
+
+        dt = getattr(getattr(env, "config", None), "control_dt", EnvConfig.control_dt)
+        if dt != EnvConfig.control_dt:
+            raise ValueError(
+                f"plan_steps={policy.plan_steps} imagines the train driver at the default "
+                f"control period ({EnvConfig.control_dt} s); this env's control_dt is {dt}; "
+                "set plan_steps=0"
             )
     size = getattr(env, "observation_size", None)
     if size is not None and any(i >= size for i in policy.hidden_obs):

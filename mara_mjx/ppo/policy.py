@@ -45,7 +45,11 @@ class Policy:
         return make_network(self.config, self.action_size)
 
     def __call__(self, obs: jax.Array) -> jax.Array:
-        """obs (..., obs_size) raw -> action (..., action_size) rad."""
+        """obs (..., obs_size) raw -> action (..., action_size) rad (with
+        PolicyConfig.plan_steps, the landing of that many imagined train-driver steps)."""
+        steps = self.config.policy.plan_steps
+        if steps:  # the policy itself, without the plan, is what the plan imagines
+            return planned_landing(self.replace(config=self.config.replace(plan_steps=0)), obs, steps)
         return self.distribution(obs)[0]
 
     def distribution(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -54,6 +58,47 @@ class Policy:
             self.network, self.params, self.obs_stats, obs, self.config.ppo.obs_clip
         )
         return mean, log_std
+
+
+def planned_landing(act: Any, obs: jax.Array, steps: int) -> jax.Array:
+    """The joint targets a MARA policy `act` (raw obs (N, obs_size) -> targets) reaches in
+    `steps` imagined steps of the train driver from `obs` (..., 12 or 16: q, e,
+    [quat_err,] v), on the nominal arm (PolicyConfig.plan_steps): the target pose is
+    read off the observation (p = p_tcp(q) - e, quat = conj(quat_err) (x) quat_tcp(q));
+    each step q' = clip(act(obs), joint limits), then obs' at q' with the TCP velocity
+    J_pos(q') (q' - q) / control_dt, as the train driver reports it (no contact check).
+    Batch-first, the loop outermost with its values in the carry, `act` (a Policy, or a
+    function wrapped as a pytree) included, so that jax2onnx exports it."""
+    from mara_mjx.envs.base import EnvConfig
+    from mara_mjx.envs.geometry import quat_conj, quat_mul
+    from mara_mjx.envs.task_space import joint_ranges, nominal_chain
+
+    chain = nominal_chain()
+    lo, hi = (np.asarray(x, np.float32) for x in joint_ranges())  # numpy: constants in ONNX
+    orientation = obs.shape[-1] == 16
+    dt = np.float32(EnvConfig.control_dt)
+    tcp = jnp.vectorize(chain.tcp, signature="(6)->(3),(4)")
+    jac = jnp.vectorize(chain.jacobian, signature="(6)->(6,6)")
+
+    q0 = obs[..., :6]
+    pos0, quat0 = tcp(q0)
+    target_pos = pos0 - obs[..., 6:9]
+    # (without an orientation the carried quaternion is the TCP's, unused)
+    target_quat = quat_mul(quat_conj(obs[..., 9:13]), quat0) if orientation else quat0
+
+    def body(_, carry):
+        o, q, target_pos, target_quat, act = carry
+        a = jnp.clip(act(o), lo, hi)
+        pos, quat = tcp(a)
+        v = jnp.einsum("...ij,...j->...i", jac(a)[..., :3, :], (a - q) / dt)
+        parts = [a, pos - target_pos]
+        if orientation:
+            parts.append(quat_mul(quat, quat_conj(target_quat)))
+        return jnp.concatenate([*parts, v], -1), a, target_pos, target_quat, act
+
+    if not isinstance(act, Policy):
+        act = jax.tree_util.Partial(act)
+    return jax.lax.fori_loop(0, steps, body, (obs, q0, target_pos, target_quat, act))[1]
 
 
 def rate_limited(policy: Any, max_step: Any, lower: Any = None, upper: Any = None) -> Any:

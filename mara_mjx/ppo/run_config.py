@@ -92,6 +92,10 @@ class EvalConfig(_ConfigMixin):
     """The evaluated policy's collision guard (PolicyConfig.collision_guard_mm, a
     deployed-only rule, so the same trained parameters): -1 as the checkpoint was trained
     (default), >= 0 replaces it (0: off), e.g. to judge existing checkpoints with it."""
+    plan_steps: int = -1
+    """The evaluated policy's imagined train-driver steps (PolicyConfig.plan_steps, a
+    deployed-only rule, so the same trained parameters): -1 as the checkpoint was trained
+    (default), >= 0 replaces it (0: off)."""
 
     def __post_init__(self):
         _check_int("episodes", self.episodes, minimum=1)
@@ -100,3 +104,4 @@ class EvalConfig(_ConfigMixin):
         _check_range("tolerance_mm", self.tolerance_mm, 0.0, math.inf)
         if self.collision_guard_mm != -1.0:
             _check_range("collision_guard_mm", self.collision_guard_mm, 0.0, 100.0)
+        _check_int("plan_steps", self.plan_steps, minimum=-1)
