@@ -33,12 +33,14 @@ from pathlib import Path
 
 import numpy as np
 
+from mara_mjx.cli.common import parse_bool
+
 BARS = ((5.0, 2.0), (1.0, 1.0))  # (mm, deg): the issue's "within 5 mm / 2 deg" and "1 mm / 1 deg"
 
 
 def cells(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
     """(name, evaluate flags) of every sweep cell but the speed."""
-    out = [("randomised", [])]
+    out = [("randomised", [])] if args.randomised else []
     out += [(f"latency {k}", ["--latency_steps", str(k), str(k)]) for k in args.latencies]
     out += [(f"calibration {c:g} rad", ["--calibration_offset", str(c)]) for c in args.calibrations]
     return out
@@ -141,6 +143,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--latencies", type=int, nargs="*", default=[0, 1, 2, 3])
     parser.add_argument("--calibrations", type=float, nargs="*",
                         default=[0.0, 0.001, 0.002, 0.004])  # fmt: skip
+    parser.add_argument("--randomised", type=parse_bool, default=True, metavar="{true,false}",
+                        help="run the plain randomised cell too (default: true)")  # fmt: skip
     parser.add_argument("--episodes", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=1000)
     args = parser.parse_args(argv[: argv.index("--")] if "--" in argv else argv)

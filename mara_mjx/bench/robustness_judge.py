@@ -132,7 +132,9 @@ def judge_targets(env: Any, policy: Any, n: int, config: Any, orientation: bool)
     from mara_mjx.ppo.target_eval import DEFAULTS
 
     eval_cfg = DEFAULTS.replace(
-        episodes=config.poses, seed=config.eval_seed, collision_guard_mm=config.collision_guard_mm,
+        episodes=config.poses,
+        seed=config.eval_seed,
+        collision_guard_mm=config.collision_guard_mm,
         plan_steps=config.plan_steps,
     )
     params, poses = held_out_params(env, eval_cfg)

@@ -316,7 +316,11 @@ def main(argv: list[str] | None = None) -> int:
             with contextlib.suppress(Exception):  # unless a backend has started already
                 jax.config.update("jax_platforms", "cpu")
         out = export_policy(
-            args.checkpoint, args.out, args.drop_ik_finish, args.overwrite, args.batch,
+            args.checkpoint,
+            args.out,
+            args.drop_ik_finish,
+            args.overwrite,
+            args.batch,
             args.plan_steps,
         )
         if out.suffix == ".onnx":

@@ -122,7 +122,9 @@ def check_args(args: argparse.Namespace) -> None:
     if args.collision_guard_mm < 0 and args.collision_guard_mm != -1:
         raise UserError(f"--collision_guard_mm must be -1 or >= 0, got {args.collision_guard_mm}")
     if not -1 <= args.plan_steps <= MAX_PLAN_STEPS:
-        raise UserError(f"--plan_steps must be -1 or in [0, {MAX_PLAN_STEPS}], got {args.plan_steps}")
+        raise UserError(
+            f"--plan_steps must be -1 or in [0, {MAX_PLAN_STEPS}], got {args.plan_steps}"
+        )
 
 
 def _main(args: argparse.Namespace) -> int:

