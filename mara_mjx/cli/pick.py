@@ -197,8 +197,8 @@ def markdown(report: dict[str, Any]) -> str:
     """The ranking as a markdown table, the chosen seed named under it."""
     speeds = list(report["ranking"][0]["velocities"])
     head = ["rank", "seed"]
+    bar = "within 5 mm and 2 deg" if report["orientation"] else "within 5 mm"
     for v in speeds:
-        bar = "within 5 mm and 2 deg" if report["orientation"] else "within 5 mm"
         head += [f"{v} rad/s: {bar}", "colliding", "mean error (mm)"]
     settings = report["settings"]
     lines = [
@@ -221,7 +221,7 @@ def markdown(report: dict[str, Any]) -> str:
         ""
         if worst >= 0.99
         else (
-            f" (warning: it ends within 5 mm (2 deg) in only {100 * worst:.1f}% of the "
+            f" (warning: it ends {bar} in only {100 * worst:.1f}% of the "
             "episodes at its worst speed; train more seeds)"
         )
     )
