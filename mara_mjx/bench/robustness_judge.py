@@ -190,7 +190,8 @@ def selection_numbers(row: dict[str, Any]) -> dict[str, dict[str, float]]:
     """Per velocity of a judge_real row: the fraction of episodes within 5 mm (and, on
     a task with an orientation, 2 deg: the deployment bar), the fraction with a collision
     and the mean error (mm, over the axes)."""
-    return {v: {"within_5": r.get("within_5mm_2deg", r["within_5"]), "colliding": r["episodes_colliding"],
+    return {v: {"within_5": r.get("within_5mm_2deg", r["within_5"]),
+                "colliding": r["episodes_colliding"],
                 "error_mm": float(np.mean(r["position_mm"]["mean"]))}
             for v, r in row["real"].items()}  # fmt: skip
 

@@ -136,7 +136,8 @@ def build_model(
         diff = self_check(
             model, obs, want, batch, PLAN_WORST, quantile=(0.95, tolerance * (1 + steps / 4))
         )
-        reference = f"jit; plan_steps: 95% within {tolerance * (1 + steps / 4):.0e}, all within {PLAN_WORST:.0e}"
+        bound = tolerance * (1 + steps / 4)
+        reference = f"jit; plan_steps: 95% within {bound:.0e}, all within {PLAN_WORST:.0e}"
         meta = {**meta, "self_check": {
             "observations": len(obs), "max_abs_diff": diff, "reference": reference}}  # fmt: skip
         helper.set_model_props(model, {"mara_mjx": json.dumps(meta)})
