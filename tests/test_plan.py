@@ -65,8 +65,9 @@ def test_bad_plan_steps_are_refused_with_the_valid_range():
     for bad in (-1, 65, 2.5):
         with pytest.raises(ValueError, match=r"plan_steps must be an int in \[0, 64\]"):
             PolicyConfig(plan_steps=bad)
-    with pytest.raises(ValueError, match="plan_steps"):
-        EvalConfig(plan_steps=-2)
+    for bad in (-2, 65):
+        with pytest.raises(ValueError, match=r"plan_steps must be -1 \(as trained\) or in"):
+            EvalConfig(plan_steps=bad)
     from mara_mjx.ppo.parametrisation import resolve
 
     env = mara_mjx.make("MARA", control_dt=0.1)
@@ -74,6 +75,28 @@ def test_bad_plan_steps_are_refused_with_the_valid_range():
         resolve(PolicyConfig(plan_steps=4, relative_actions=True), env)
     with pytest.raises(ValueError, match="has no config"):
         with_deployed(lambda obs: obs, "plan_steps", 4)
+
+
+def test_a_plan_is_refused_at_another_control_period(tmp_path, monkeypatch):
+    """Turned on after training (evaluate's override, export's flag), the plan is checked
+    against the env it runs in: its imagined steps assume the default control period."""
+    from mara_mjx.cli.export import ExportError, export_policy
+    from mara_mjx.ppo.evaluation import make_evaluate
+
+    run = make_run(tmp_path / "run", "MARA", False, relative=True)
+    policy = make_policy(run)
+    slow = mara_mjx.make("MARA", control_dt=0.1)
+    fn = make_evaluate(slow, EvalConfig(episodes=2, plan_steps=3))
+    with pytest.raises(ValueError, match="default control period"):
+        fn(policy)
+    # export of a run whose env runs at 0.1 s (its saved env config, patched here)
+    from mara_mjx.runtime import runs
+
+    saved = runs.env_overrides
+    monkeypatch.setattr(runs, "env_overrides", lambda c: {**saved(c), "control_dt": 0.1})
+    with pytest.raises(ExportError, match="default control period"):
+        export_policy(run, tmp_path / "p.onnx", plan_steps=3)
+    assert not (tmp_path / "p.onnx").exists()
 
 
 def test_plan_steps_exports_to_onnx_and_matches(tmp_path):

@@ -107,6 +107,7 @@ def export_policy(
     from mara_mjx.envs.arm import JOINTS
     from mara_mjx.ppo import checkpoint as ckpt
     from mara_mjx.ppo import policy as policy_io
+    from mara_mjx.ppo.parametrisation import check_plan_period
     from mara_mjx.runtime import outputs, runs
 
     out_path = Path(out_path)
@@ -147,7 +148,7 @@ def export_policy(
     if jacobian and out_path.suffix == ".npz":
         option, value = jacobian[0]
         raise ExportError(
-            f"{str(source)!r} was trained with {option}={value!r}, which needs the arm's "
+            f"the policy of {str(source)!r} has {option}={value!r}, which needs the arm's "
             "Jacobian or contact distances (mara_mjx.envs.task_space, envs/clearance); .npz "
             "export supports joint-space policies "
             "only. Export .onnx (its graph runs every rule; pip install 'mara_mjx[export]'), "
@@ -169,6 +170,11 @@ def export_policy(
             f"cannot rebuild env {env_name!r} of the checkpoint (needed for the observation "
             f"layout and the joint limits): {e}"
         ) from e
+    if config.plan_steps:
+        try:
+            check_plan_period(config.plan_steps, env)
+        except ValueError as e:
+            raise ExportError(str(e)) from e
     if env.observation_size != meta["observation_size"]:
         raise ExportError(
             f"env {env_name!r} has observation size {env.observation_size}, but the checkpoint "

@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mara_mjx.ppo.config import EvalConfig
+from mara_mjx.ppo.parametrisation import check_plan_period
 from mara_mjx.ppo.policy import Policy, rate_limited
 
 # Spec section 7: mean and std over 10 runs, per axis; mm and degrees.
@@ -148,6 +149,8 @@ def make_evaluate(
             policy = with_collision_guard(policy, config.collision_guard_mm)
         if config.plan_steps >= 0:
             policy = with_deployed(policy, "plan_steps", config.plan_steps)
+        steps = getattr(getattr(getattr(policy, "config", None), "policy", None), "plan_steps", 0)
+        check_plan_period(steps, env)  # (at trace time: a checkpoint run at another period)
         if config.rate_limit:
             policy = rate_limited(policy, max_step, env.joint_lower, env.joint_upper)
         state = reset(keys, params)

@@ -268,6 +268,20 @@ class PolicyConfig(_ConfigMixin):
             )
 
 
+def check_plan_period(plan_steps: int, env: Any) -> None:
+    """ValueError where a policy with `plan_steps` (> 0) would run on an env whose control
+    period is not the default its imagined train-driver steps assume."""
+    from mara_mjx.envs.base import EnvConfig
+
+    dt = getattr(getattr(env, "config", None), "control_dt", EnvConfig.control_dt)
+    if plan_steps and dt != EnvConfig.control_dt:
+        raise ValueError(
+            f"plan_steps={plan_steps} imagines the train driver at the default control "
+            f"period ({EnvConfig.control_dt} s); this env's control_dt is {dt}; set "
+            "plan_steps=0"
+        )
+
+
 def resolve(policy: PolicyConfig, env: Any) -> PolicyConfig:
     """`policy` for `env`: `quat_index` from the env's `observation_layout` (a list of
     {name, start, stop, ...}; -1 where it has no quat_err or nothing reads it), and
@@ -292,15 +306,7 @@ def resolve(policy: PolicyConfig, env: Any) -> PolicyConfig:
                 f"and 6 joint actions; this env has neither; set {option}={off}"
             )
     if policy.plan_steps:
-        from mara_mjx.envs.base import EnvConfig
-
-        dt = getattr(getattr(env, "config", None), "control_dt", EnvConfig.control_dt)
-        if dt != EnvConfig.control_dt:
-            raise ValueError(
-                f"plan_steps={policy.plan_steps} imagines the train driver at the default "
-                f"control period ({EnvConfig.control_dt} s); this env's control_dt is {dt}; "
-                "set plan_steps=0"
-            )
+        check_plan_period(policy.plan_steps, env)
     size = getattr(env, "observation_size", None)
     if size is not None and any(i >= size for i in policy.hidden_obs):
         raise ValueError(
