@@ -158,14 +158,9 @@ class RobustnessConfig(BenchConfig):
         check_int("eval_seed", self.eval_seed, minimum=0)
         check_int("parallel", self.parallel, minimum=0)
         check_int("select_seed", self.select_seed, minimum=-1)
-        from mara_mjx.config import is_int
-        from mara_mjx.ppo.parametrisation import MAX_PLAN_STEPS
+        from mara_mjx.ppo.parametrisation import check_plan_override
 
-        if not is_int(self.plan_steps) or not -1 <= self.plan_steps <= MAX_PLAN_STEPS:
-            raise ValueError(
-                f"plan_steps must be -1 (as trained) or in [0, {MAX_PLAN_STEPS}], "
-                f"got {self.plan_steps!r}"
-            )
+        check_plan_override(self.plan_steps)
         if self.selection_seed == self.eval_seed:
             raise ValueError(
                 f"select_seed={self.select_seed} is eval_seed: the seeds would be chosen on "

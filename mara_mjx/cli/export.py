@@ -170,11 +170,10 @@ def export_policy(
             f"cannot rebuild env {env_name!r} of the checkpoint (needed for the observation "
             f"layout and the joint limits): {e}"
         ) from e
-    if config.plan_steps:
-        try:
-            check_plan_period(config.plan_steps, env)
-        except ValueError as e:
-            raise ExportError(str(e)) from e
+    try:
+        check_plan_period(config.plan_steps, env)
+    except ValueError as e:
+        raise ExportError(str(e)) from e
     if env.observation_size != meta["observation_size"]:
         raise ExportError(
             f"env {env_name!r} has observation size {env.observation_size}, but the checkpoint "

@@ -45,7 +45,7 @@ from mara_mjx.cli.common import (
     parse_bool,
     run_cli,
 )
-from mara_mjx.ppo.parametrisation import MAX_PLAN_STEPS
+from mara_mjx.ppo.parametrisation import check_plan_override
 from mara_mjx.runtime import files, outputs, runs
 
 PROG = "mara_mjx.pick"
@@ -121,10 +121,10 @@ def check_args(args: argparse.Namespace) -> None:
         raise UserError(f"--velocities must be distinct, got {args.velocities}")
     if args.collision_guard_mm < 0 and args.collision_guard_mm != -1:
         raise UserError(f"--collision_guard_mm must be -1 or >= 0, got {args.collision_guard_mm}")
-    if not -1 <= args.plan_steps <= MAX_PLAN_STEPS:
-        raise UserError(
-            f"--plan_steps must be -1 or in [0, {MAX_PLAN_STEPS}], got {args.plan_steps}"
-        )
+    try:
+        check_plan_override(args.plan_steps)
+    except ValueError as e:
+        raise UserError(f"--{e}") from e
 
 
 def _main(args: argparse.Namespace) -> int:

@@ -149,8 +149,8 @@ def make_evaluate(
             policy = with_collision_guard(policy, config.collision_guard_mm)
         if config.plan_steps >= 0:
             policy = with_deployed(policy, "plan_steps", config.plan_steps)
-        steps = getattr(getattr(getattr(policy, "config", None), "policy", None), "plan_steps", 0)
-        check_plan_period(steps, env)  # (at trace time: a checkpoint run at another period)
+        if hasattr(policy, "config"):  # a checkpoint's Policy (an exported file has none)
+            check_plan_period(policy.config.policy.plan_steps, env)  # (at trace time)
         if config.rate_limit:
             policy = rate_limited(policy, max_step, env.joint_lower, env.joint_upper)
         state = reset(keys, params)

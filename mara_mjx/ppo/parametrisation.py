@@ -268,6 +268,15 @@ class PolicyConfig(_ConfigMixin):
             )
 
 
+def check_plan_override(plan_steps: Any) -> None:
+    """ValueError unless `plan_steps` is an override of PolicyConfig.plan_steps as the
+    evaluations take it: -1 (as trained), or a valid plan_steps (0: off)."""
+    if not _is_int(plan_steps) or not -1 <= plan_steps <= MAX_PLAN_STEPS:
+        raise ValueError(
+            f"plan_steps must be -1 (as trained) or in [0, {MAX_PLAN_STEPS}], got {plan_steps!r}"
+        )
+
+
 def check_plan_period(plan_steps: int, env: Any) -> None:
     """ValueError where a policy with `plan_steps` (> 0) would run on an env whose control
     period is not the default its imagined train-driver steps assume."""
@@ -305,8 +314,7 @@ def resolve(policy: PolicyConfig, env: Any) -> PolicyConfig:
                 f"{option}={value!r} needs a MARA arm's observation (q at 0, e at 6) "
                 f"and 6 joint actions; this env has neither; set {option}={off}"
             )
-    if policy.plan_steps:
-        check_plan_period(policy.plan_steps, env)
+    check_plan_period(policy.plan_steps, env)
     size = getattr(env, "observation_size", None)
     if size is not None and any(i >= size for i in policy.hidden_obs):
         raise ValueError(

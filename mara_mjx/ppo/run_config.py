@@ -104,11 +104,6 @@ class EvalConfig(_ConfigMixin):
         _check_range("tolerance_mm", self.tolerance_mm, 0.0, math.inf)
         if self.collision_guard_mm != -1.0:
             _check_range("collision_guard_mm", self.collision_guard_mm, 0.0, 100.0)
-        from mara_mjx.config import is_int
-        from mara_mjx.ppo.parametrisation import MAX_PLAN_STEPS
+        from mara_mjx.ppo.parametrisation import check_plan_override
 
-        if not is_int(self.plan_steps) or not -1 <= self.plan_steps <= MAX_PLAN_STEPS:
-            raise ValueError(
-                f"plan_steps must be -1 (as trained) or in [0, {MAX_PLAN_STEPS}], "
-                f"got {self.plan_steps!r}"
-            )
+        check_plan_override(self.plan_steps)
