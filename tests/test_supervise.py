@@ -25,6 +25,9 @@ import importlib.util, os, signal, sys, time
 spec = importlib.util.spec_from_file_location("supervise", sys.argv[2])
 supervise = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(supervise)
+if len(sys.argv) > 3:  # a parent slow to start watching (a loaded machine): argv[3] seconds
+    watch = supervise._watch
+    supervise._watch = lambda *a: (time.sleep(float(sys.argv[3])), watch(*a))[1]
 
 def command():
     what = sys.argv[1]
@@ -60,10 +63,10 @@ sys.exit(supervise.run(command, "prog"))
 """
 
 
-def start(what: str, **kwargs) -> subprocess.Popen:
+def start(what: str, *extra: str, **kwargs) -> subprocess.Popen:
     env = {k: v for k, v in os.environ.items() if k != supervise.ENV_VAR}
     return subprocess.Popen(
-        [sys.executable, "-c", CHILD, what, supervise.__file__],
+        [sys.executable, "-c", CHILD, what, supervise.__file__, *extra],
         cwd=REPO,
         env=env,
         stdout=subprocess.PIPE,
@@ -116,6 +119,19 @@ def test_sigterm_reaches_the_child_once():
     alone = start("stop")
     group = start("stop", start_new_session=True)
     wait_line(alone), wait_line(group)
+    alone.send_signal(signal.SIGTERM)
+    os.killpg(group.pid, signal.SIGTERM)
+    for proc in (alone, group):
+        code, _, err = finish(proc)
+        assert code == 143 and "SIGTERMs: 1" in err, (code, err)
+
+
+def test_a_signal_before_the_parent_watches_waits_for_it():
+    """A SIGTERM that comes between the fork and the parent's first look (CI's loaded
+    machine once: the parent died of it, and the child with it) is held, then forwarded."""
+    alone = start("stop", "1.0")
+    group = start("stop", "1.0", start_new_session=True)
+    wait_line(alone), wait_line(group)  # the children run; both parents still sleep
     alone.send_signal(signal.SIGTERM)
     os.killpg(group.pid, signal.SIGTERM)
     for proc in (alone, group):

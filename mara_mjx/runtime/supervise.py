@@ -50,6 +50,7 @@ ENV_VAR = "MARA_MJX_SUPERVISE"
 TAIL_BYTES = 8192
 GRACE_S = 0.2  # how long the child has to report a signal it got directly
 FORWARD = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+WATCHED = {*FORWARD, signal.SIGCHLD, signal.SIGWINCH}
 CRASHES = {"SIGABRT", "SIGSEGV", "SIGBUS", "SIGILL", "SIGFPE", "SIGKILL", "SIGSYS", "SIGTRAP"}
 SI_KERNEL = 0x80  # siginfo.si_code of a signal the kernel sent (a terminal's Ctrl-C)
 PR_SET_PDEATHSIG = 1
@@ -84,8 +85,12 @@ def run(command: Callable[[], int], prog: str) -> int:
     sys.stdout.flush()
     sys.stderr.flush()
     parent = os.getpid()
+    # Blocked before the fork: a signal that comes while the parent is still starting to
+    # watch waits for `_watch` instead of killing the parent (and, with it, the child)
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, WATCHED)
     pid = os.fork()
     if pid == 0:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # the command sees what it did
         os.close(read_end)
         os.close(wake_read)
         os.dup2(write_end, 2)
@@ -182,8 +187,7 @@ def _watch(pid: int, output: int, wake: int, prog: str, pty: int | None) -> int:
     import gc
 
     gc.freeze()  # the child's pages stay shared: no collection touches them here
-    watched = {*FORWARD, signal.SIGCHLD, signal.SIGWINCH}
-    signal.pthread_sigmask(signal.SIG_BLOCK, watched)  # (the copying thread inherits it)
+    # (WATCHED is blocked since the fork; the copying thread inherits the mask)
     tail = _Tail(output)
     tail.start()
     os.set_blocking(wake, False)
@@ -191,7 +195,7 @@ def _watch(pid: int, output: int, wake: int, prog: str, pty: int | None) -> int:
     expected: dict[int, collections.deque] = {s: collections.deque() for s in FORWARD}
     pending: list[tuple[int, float, bool]] = []  # (signal, time, from the kernel)
     while True:
-        info = signal.sigtimedwait(watched, 0.05 if pending else 0.5)
+        info = signal.sigtimedwait(WATCHED, 0.05 if pending else 0.5)
         now = time.monotonic()
         try:
             reported = os.read(wake, 4096)
