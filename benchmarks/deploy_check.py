@@ -10,6 +10,9 @@ same episodes), and compare the reached count and the per-axis means.
 Writes <out>/deploy_check.json (per seed: the two reports' rows, the differences, the
 export's self-check and timings; the commands) and <out>/deploy_check.md (the table).
 Every command runs as the user would run it, in its own process, on this machine's CPU.
+Files of those names in <out> are replaced only when an earlier check wrote them (or with
+--overwrite): a user's file, a checkpoint or a run folder's file is refused before
+anything runs.
 """
 
 from __future__ import annotations
@@ -23,6 +26,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from mara_mjx.cli.common import UserError
+from mara_mjx.runtime import files, outputs
+
+OUTPUTS = ("deploy_check.json", "deploy_check.md")
 TOL_MM, TOL_DEG = 0.01, 0.01
 
 
@@ -60,6 +67,14 @@ def check_cell(check: dict) -> str:
     return f"{check['max_abs_diff']:.1e} {check.get('reference', 'jit')}"
 
 
+def ours(out: Path) -> bool:
+    """True if `out`'s deploy_check.json is an earlier check's (its files may be replaced)."""
+    data = outputs.read_json(out / OUTPUTS[0])
+    return isinstance(data, dict) and str(data.get("command", "")).startswith(
+        "python benchmarks/deploy_check.py"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("seeds", nargs="+", type=Path, help="run folders (one per seed)")
@@ -67,10 +82,16 @@ def main() -> None:
     parser.add_argument("--label", required=True)
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--seed", type=int, default=1000)
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace deploy_check.* in --out that no check wrote")  # fmt: skip
     argv = sys.argv[1:]
     cut = argv.index("--") if "--" in argv else len(argv)
     args, extra = parser.parse_args(argv[:cut]), argv[cut + 1 :]  # after --: evaluate's
-    args.out.mkdir(parents=True, exist_ok=True)
+    try:
+        outputs.check_output_folder(args.out, OUTPUTS, "--out", lambda: ours(args.out),
+                                    args.overwrite)  # fmt: skip
+    except UserError as e:
+        parser.error(str(e))
     py = [sys.executable, "-m"]
     flags = ["--episodes", str(args.episodes), "--seed", str(args.seed), *extra]
     rows = []
@@ -118,7 +139,7 @@ def main() -> None:
         "seeds": rows,
         "matched": sum(r["match"] for r in rows),
     }
-    (args.out / "deploy_check.json").write_text(json.dumps(record, indent=1))
+    files.write_atomic(args.out / OUTPUTS[0], json.dumps(record, indent=1))
     lines = [
         f"# {args.label}: the exported .onnx against its checkpoint, same episodes",
         "",
@@ -141,7 +162,7 @@ def main() -> None:
         )
     lines += ["", f"{record['matched']} of {len(rows)} seeds match (same reached count, "
               f"per-axis means within {TOL_MM} mm / {TOL_DEG} deg)."]  # fmt: skip
-    (args.out / "deploy_check.md").write_text("\n".join(lines) + "\n")
+    files.write_atomic(args.out / OUTPUTS[1], "\n".join(lines) + "\n")
     print(f"wrote {args.out / 'deploy_check.json'}, {args.out / 'deploy_check.md'}")
 
 

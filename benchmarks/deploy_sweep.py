@@ -17,7 +17,11 @@ fractions within 5 mm and 2 deg and within 1 mm and 1 deg (degrees only on tasks
 orientation), per-axis mean, p95 and worst (mm; deg), and the fraction of episodes with a
 collision. Writes <out>/deploy_sweep.json (every cell, the commands, versions),
 <out>/deploy_sweep.md (the table) and <out>/deploy_sweep.png (within 5 mm against latency
-and calibration, one line per file and speed).
+and calibration, one line per file and speed). The JSON and the table are rewritten after
+every cell ("complete": false until the last), so a sweep cut off keeps what ran. Files of
+that name in <out> are replaced only when they are an earlier sweep's (or with
+--overwrite): a user's file, a checkpoint or a run folder's file there is refused before
+anything runs.
 """
 
 from __future__ import annotations
@@ -33,7 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mara_mjx.cli.common import parse_bool
+from mara_mjx.cli.common import UserError, parse_bool
+from mara_mjx.runtime import files, outputs
 
 BARS = ((5.0, 2.0), (1.0, 1.0))  # (mm, deg): the issue's "within 5 mm / 2 deg" and "1 mm / 1 deg"
 
@@ -51,7 +56,8 @@ def metrics(report: dict) -> dict:
     episodes = report["episodes"]
     pos = np.array([e["position_error_mm"] for e in episodes], np.float64)
     orientation = "Orient" in report["env_name"]  # the tasks with an orientation target
-    ori = np.array([e["orientation_error_deg"] for e in episodes], np.float64)
+    if orientation:
+        ori = np.array([e["orientation_error_deg"] for e in episodes], np.float64)
     out = {"episodes": len(episodes)}
     for mm, deg in BARS:
         ok = np.all(pos <= mm, axis=1)
@@ -147,10 +153,17 @@ def main(argv: list[str] | None = None) -> int:
                         help="run the plain randomised cell too (default: true)")  # fmt: skip
     parser.add_argument("--episodes", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=1000)
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace deploy_sweep.* in --out that no sweep wrote")  # fmt: skip
     args = parser.parse_args(argv[: argv.index("--")] if "--" in argv else argv)
     args.extra = extra
-    args.out.mkdir(parents=True, exist_ok=True)
-    rows = []
+    this = "python benchmarks/deploy_sweep.py " + " ".join(argv)
+    try:
+        outputs.check_output_folder(args.out, OUTPUTS, "--out", lambda: ours(args.out),
+                                    args.overwrite)  # fmt: skip
+    except UserError as e:
+        parser.error(str(e))
+    rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
         for policy in args.policies:
             for v in args.velocities:
@@ -161,20 +174,36 @@ def main(argv: list[str] | None = None) -> int:
                            "env_name": report["env_name"], "metrics": metrics(report)}  # fmt: skip
                     rows.append(row)
                     print(f"{Path(policy).name} {v:g} rad/s {name}: {row['metrics']}", flush=True)
-                    versions = report.get("versions")
-    orientation = "orientation_deg" in rows[0]["metrics"]
-    text = table(rows, orientation)
-    this = "python benchmarks/deploy_sweep.py " + " ".join(argv)
-    head = (f"# {args.label}\n\n`{this}` ({platform.platform()}, CPU; evaluate's versions: "
-            f"{versions}). Every episode to the horizon, on the real driver with randomised "
-            "physics; each condition changes one randomised parameter.\n")  # fmt: skip
-    (args.out / "deploy_sweep.md").write_text(head + "\n" + text + "\n")
-    (args.out / "deploy_sweep.json").write_text(json.dumps(
-        {"command": this, "label": args.label, "platform": platform.platform(),
-         "versions": versions, "rows": rows}, indent=1))  # fmt: skip
+                    record(args, this, rows, report.get("versions"), complete=False)
+    text = record(args, this, rows, report.get("versions"), complete=True)
     figure(args.out / "deploy_sweep.png", rows, args)
     print(text)
     return 0
+
+
+OUTPUTS = ("deploy_sweep.json", "deploy_sweep.md", "deploy_sweep.png")
+
+
+def ours(out: Path) -> bool:
+    """True if `out`'s deploy_sweep.json is an earlier sweep's (its files may be replaced)."""
+    data = outputs.read_json(out / OUTPUTS[0])
+    return isinstance(data, dict) and str(data.get("command", "")).startswith(
+        "python benchmarks/deploy_sweep.py"
+    )
+
+
+def record(args, this: str, rows: list[dict], versions, complete: bool) -> str:
+    """Writes the JSON and the table of the cells so far; returns the table."""
+    text = table(rows, "orientation_deg" in rows[0]["metrics"])
+    state = "" if complete else f" Incomplete: {len(rows)} cells so far."
+    head = (f"# {args.label}\n\n`{this}` ({platform.platform()}, CPU; evaluate's versions: "
+            f"{versions}). Every episode to the horizon, on the real driver with randomised "
+            f"physics; each condition changes one randomised parameter.{state}\n")  # fmt: skip
+    files.write_atomic(args.out / "deploy_sweep.json", json.dumps(
+        {"command": this, "label": args.label, "platform": platform.platform(),
+         "versions": versions, "complete": complete, "rows": rows}, indent=1))  # fmt: skip
+    files.write_atomic(args.out / "deploy_sweep.md", head + "\n" + text + "\n")
+    return text
 
 
 if __name__ == "__main__":

@@ -222,16 +222,22 @@ def test_select_trains_k_seeds_per_judged_seed_and_keeps_the_one_that_transfers(
     assert select_seeds([1, 2], [a, b], 2)[0] == [1]
 
 
-def test_deploy_sweep_reads_an_evaluate_report():
-    """benchmarks/deploy_sweep.py's numbers from a report's episodes: the two bars (mm and,
-    on an Orient task, deg together), per-axis mean / p95 / worst, colliding episodes."""
+def load_script(name: str):
+    """A benchmarks/ script as a module."""
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "deploy_sweep.py"
-    spec = importlib.util.spec_from_file_location("deploy_sweep", path)
-    sweep = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(sweep)
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_deploy_sweep_reads_an_evaluate_report():
+    """benchmarks/deploy_sweep.py's numbers from a report's episodes: the two bars (mm and,
+    on an Orient task, deg together), per-axis mean / p95 / worst, colliding episodes."""
+    sweep = load_script("deploy_sweep")
 
     def episode(mm, deg, collisions=0):
         return {"position_error_mm": [mm, 0.1, 0.1], "orientation_error_deg": [deg, 0, 0],
@@ -245,6 +251,55 @@ def test_deploy_sweep_reads_an_evaluate_report():
     assert m["position_mm"]["mean"][0] == pytest.approx(3.875)
     plain = sweep.metrics({"env_name": "MARACollision", "episodes": eps})
     assert plain["within_5mm"] == 0.75 and "orientation_deg" not in plain
+
+
+def test_deploy_sweep_keeps_what_ran_and_a_users_files(tmp_path, monkeypatch, capsys):
+    """deploy_sweep.py writes its JSON after every cell (a sweep cut off keeps the cells
+    that ran), replaces an earlier sweep's files, and refuses, before running anything, an
+    --out whose deploy_sweep.* a user wrote, or an --out that is a file."""
+    import json
+
+    sweep = load_script("deploy_sweep")
+    calls = []
+
+    def fake(policy, velocity, flags, args, tmp):
+        calls.append(flags)
+        if len(calls) == 3:
+            raise KeyboardInterrupt  # the machine taken back mid-sweep
+        ep = {"position_error_mm": [0.5, 0.1, 0.1], "collisions": 0}
+        return "python -m mara_mjx.evaluate ...", 1.0, {"env_name": "MARA", "episodes": [ep]}
+
+    monkeypatch.setattr(sweep, "evaluate", fake)
+    out = tmp_path / "sweep"
+    argv = ["p.onnx", "--out", str(out), "--velocities", "0.3", "--calibrations"]
+    with pytest.raises(KeyboardInterrupt):
+        sweep.main(argv)  # randomised, latency 0, latency 1 (cut), ...
+    data = json.loads((out / "deploy_sweep.json").read_text())
+    assert data["complete"] is False and [r["condition"] for r in data["rows"]] == [
+        "randomised", "latency 0"]  # fmt: skip
+    calls.clear()
+    assert sweep.main([*argv[:-1], "--latencies", "--calibrations"]) == 0  # replaces its own
+    data = json.loads((out / "deploy_sweep.json").read_text())
+    assert data["complete"] is True and len(data["rows"]) == 1
+    assert (out / "deploy_sweep.png").is_file()
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "deploy_sweep.md").write_text("my notes")
+    calls.clear()
+    for bad, message in (
+        (mine, "exists and was not written"),
+        (mine / "deploy_sweep.md", "is a file"),
+    ):
+        with pytest.raises(SystemExit) as e:
+            sweep.main(["p.onnx", "--out", str(bad)])
+        assert e.value.code == 2 and message in capsys.readouterr().err
+    assert calls == [] and (mine / "deploy_sweep.md").read_text() == "my notes"
+    check = load_script("deploy_check")
+    (mine / "deploy_check.json").write_text("{}")
+    monkeypatch.setattr("sys.argv", ["deploy_check.py", "seed", "--out", str(mine), "--label", "x"])
+    with pytest.raises(SystemExit) as e:
+        check.main()
+    assert e.value.code == 2 and "deploy_check.json" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(

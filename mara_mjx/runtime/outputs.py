@@ -159,3 +159,25 @@ def companion_of(report: Path) -> Callable[[Path], bool]:
     """`ours` for a file written beside the JSON `report` (its .md, .png): an earlier
     evaluation's if that report is one."""
     return lambda path: is_report(report)
+
+
+def check_output_folder(
+    folder: str | os.PathLike,
+    names: tuple[str, ...],
+    what: str,
+    ours: Callable[[], bool],
+    overwrite: bool = False,
+) -> Path:
+    """`folder` if a script may write its fixed-name outputs `names` there (a study's
+    `--out FOLDER`: NAME.json, NAME.md, NAME.png); otherwise UserError. Each name is
+    checked as `check_output` checks a file; `ours()` tells whether the folder's files are
+    an earlier output of the same script (read off its JSON), which are replaced."""
+    from mara_mjx.cli.common import UserError
+
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise UserError(f"{what} {str(folder)!r} is a file; name a folder")
+    mine = ours()
+    for name in names:
+        check_output(folder / name, what, lambda _: mine, overwrite)
+    return folder
