@@ -113,6 +113,9 @@ class RobustnessConfig(BenchConfig):
     plan_steps: int = -1
     """Every judgement: the deployed policy's imagined train-driver steps
     (EvalConfig.plan_steps; -1: as each checkpoint was trained; >= 0 replaces it, 0: off)."""
+    commit_rad: float = -1.0
+    """Every judgement: the deployed policy's held commands' arrival tolerance
+    (EvalConfig.commit_rad; -1: as each checkpoint was trained; >= 0 replaces it, 0: off)."""
     fail_fraction: float = 0.99
     """targets and real: a seed fails below this fraction of episodes within 5 mm (5 deg)."""
     bootstrap: int = 2000
@@ -158,9 +161,10 @@ class RobustnessConfig(BenchConfig):
         check_int("eval_seed", self.eval_seed, minimum=0)
         check_int("parallel", self.parallel, minimum=0)
         check_int("select_seed", self.select_seed, minimum=-1)
-        from mara_mjx.ppo.parametrisation import check_plan_override
+        from mara_mjx.ppo.parametrisation import check_commit_override, check_plan_override
 
         check_plan_override(self.plan_steps)
+        check_commit_override(self.commit_rad)
         if self.selection_seed == self.eval_seed:
             raise ValueError(
                 f"select_seed={self.select_seed} is eval_seed: the seeds would be chosen on "

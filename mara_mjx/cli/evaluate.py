@@ -134,8 +134,11 @@ def _main(args: argparse.Namespace) -> int:
     group = None if export else seeds.group_of(args.checkpoint)  # several seeds: each newest
     path = None if group or export else ckpt.find_checkpoint(args.checkpoint)
     arrays, meta = ckpt.load_checkpoint(path) if path else (None, None)
+    eval_overrides = overrides(args, "eval")
+    if export is not None and eval_overrides.get("commit_rad", -1.0) == -1.0:
+        eval_overrides["commit_rad"] = in_the_loop.commit_rad(export.meta)  # the file's rule
     try:
-        config = EvalConfig().replace(**overrides(args, "eval"))
+        config = EvalConfig().replace(**eval_overrides)
     except ValueError as e:
         raise UserError(f"invalid eval config: {e}") from e
     if config.rate_limit:  # (reads the checkpoint's driver only then)
@@ -183,7 +186,7 @@ def _main(args: argparse.Namespace) -> int:
             heading=heading,
             env=env,
             policy=policy,
-            eval_overrides=overrides(args, "eval"),
+            eval_overrides=eval_overrides,
             json_path=str(out),
         )
     print(heading)

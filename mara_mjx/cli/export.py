@@ -44,7 +44,10 @@ File layout (`np.load(path)`; no pickles):
                        observation_layout [{name, start, stop, units, description}],
                        action {joint_names, lower, upper, units, description},
                        source {checkpoint, update, env_steps},
-                       control_dt (s, the control period), recipe {preset, config}
+                       control_dt (s, the control period), commit_rad (rad; > 0: hold
+                       each command until the arm arrives or stops, PolicyConfig.commit_rad:
+                       the runner applies it, deploy/numpy_policy.committed),
+                       recipe {preset, config}
 
 The output is written atomically and never replaces a checkpoint (any file of a
 `checkpoints/` folder, or a mara_mjx checkpoint anywhere) or a run folder's own file; an
@@ -89,6 +92,7 @@ def export_policy(
     overwrite: bool = False,
     batch: int | None = None,
     plan_steps: int | None = None,
+    commit_rad: float | None = None,
 ) -> Path:
     """Write the deterministic policy of `checkpoint` (a checkpoint file, or a run folder:
     its newest checkpoint) to `out_path`, atomically: .npz (numpy) or .onnx (an ONNX
@@ -100,7 +104,9 @@ def export_policy(
     existing `out_path` is replaced only if it is an exported policy, or with
     `overwrite`; never a checkpoint or a run folder's file (module docstring).
     `plan_steps`: the deployed policy's imagined train-driver steps
-    (PolicyConfig.plan_steps, deployed only; None: as trained; 0: off). Raises
+    (PolicyConfig.plan_steps, deployed only; None: as trained; 0: off). `commit_rad`:
+    the held commands' arrival tolerance (PolicyConfig.commit_rad; None: as trained; 0:
+    off), written in the metadata (its "commit_rad") for the runner to apply. Raises
     ExportError (or mara_mjx.ppo.CheckpointError, also a ValueError) with what is
     wrong."""
     import mara_mjx
@@ -135,6 +141,11 @@ def export_policy(
             policy = policy.replace(config=policy.config.replace(plan_steps=int(plan_steps)))
         except ValueError as e:
             raise ExportError(f"--plan_steps: {e}") from e
+    if commit_rad is not None:
+        try:
+            policy = policy.replace(config=policy.config.replace(commit_rad=float(commit_rad)))
+        except ValueError as e:
+            raise ExportError(f"--commit_rad: {e}") from e
     config, ppo = policy.config.policy, policy.config.ppo
     # options whose actions need the arm's Jacobian or its contact distances, which the
     # numpy MLP does not have
@@ -220,6 +231,7 @@ def export_policy(
             "env_steps": progress.get("env_steps"),
         },
         "control_dt": float(env.config.control_dt),
+        "commit_rad": float(config.commit_rad),
         "recipe": {"preset": meta.get("preset", ""), "config": policy.config.to_dict()},
     }
     if in_graph:  # every rule is in the traced graph (mara_mjx/deploy/onnx_graph.py)
@@ -299,6 +311,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="the deployed policy commands the landing of this many imagined train-driver "
         "steps (PolicyConfig.plan_steps; for a servo-driven arm; 0 off); default as trained",
     )
+    parser.add_argument(
+        "--commit_rad",
+        type=float,
+        default=None,
+        help="the runner holds each command until the arm is within this many rad of it or "
+        "stops (PolicyConfig.commit_rad; for a servo-driven arm; 0 off); default as trained",
+    )
     add_deprecated_alias(parser, "--drop-ik-finish", "--drop_ik_finish", PROG)
     parser.add_argument(
         "--overwrite",
@@ -327,6 +346,7 @@ def main(argv: list[str] | None = None) -> int:
             args.overwrite,
             args.batch,
             args.plan_steps,
+            args.commit_rad,
         )
         if out.suffix == ".onnx":
             print(f"wrote {out}: ONNX (opset 17), input obs (N, obs_size) float32, outputs "

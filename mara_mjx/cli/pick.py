@@ -45,7 +45,7 @@ from mara_mjx.cli.common import (
     parse_bool,
     run_cli,
 )
-from mara_mjx.ppo.parametrisation import check_plan_override
+from mara_mjx.ppo.parametrisation import check_commit_override, check_plan_override
 from mara_mjx.runtime import files, outputs, runs
 
 PROG = "mara_mjx.pick"
@@ -87,6 +87,11 @@ def build_parser() -> argparse.ArgumentParser:
         "-1 as each seed was trained (default), 0 off, > 0 that many",
     )  # fmt: skip
     parser.add_argument(
+        "--commit_rad", type=float, default=-1.0,
+        help="the deployed policy holds each command until the arm is within this many rad "
+        "of it or stops (PolicyConfig.commit_rad): -1 as each seed was trained (default), 0 off",
+    )  # fmt: skip
+    parser.add_argument(
         "--json", metavar="PATH",
         help=f"where to write the JSON ranking (default: <RUN>/{REPORT}); never a "
         "checkpoint or a run folder's own file",
@@ -123,6 +128,7 @@ def check_args(args: argparse.Namespace) -> None:
         raise UserError(f"--collision_guard_mm must be -1 or >= 0, got {args.collision_guard_mm}")
     try:
         check_plan_override(args.plan_steps)
+        check_commit_override(args.commit_rad)
     except ValueError as e:
         raise UserError(f"--{e}") from e
 
@@ -160,7 +166,7 @@ def _main(args: argparse.Namespace) -> int:
     settings = SimpleNamespace(
         draws=args.draws, eval_seed=args.seed, velocities=tuple(args.velocities),
         rate_limit=args.rate_limit, collision_guard_mm=args.collision_guard_mm,
-        plan_steps=args.plan_steps,
+        plan_steps=args.plan_steps, commit_rad=args.commit_rad,
     )  # fmt: skip
     print(f"run: {top}, seeds {seed_ids}, env {meta['env_name']}: the real driver at "
           f"{' and '.join(f'{v:g}' for v in args.velocities)} rad/s with randomised physics, "

@@ -330,10 +330,20 @@ def run_episodes(
     params, keys = episode_plan(env, config)  # evaluate's episodes, one at a time
     reset = jax.jit(env.reset)
 
+    from mara_mjx.deploy.numpy_policy import committed
+    from mara_mjx.ppo.evaluation import deployed_commit
+
+    commit = deployed_commit(policy, config)  # held commands (commit_rad), as evaluate's
+    bounds = (env.joint_lower, env.joint_upper)
+
     @jax.jit
-    def step(policy, state):
-        state = env.step(state, policy(state.obs))
-        return state, state.metrics["collided"]
+    def step(policy, state, held):
+        action = policy(state.obs)
+        q = state.obs[: action.shape[-1]]
+        if commit > 0.0:
+            action = committed(q, action, *held, commit, *bounds, xp=jax.numpy)
+        state = env.step(state, action)
+        return state, state.metrics["collided"], (action, q)
 
     dt = env.config.control_dt
     target = None  # the episode's: random-target tasks draw a new one at every reset
@@ -357,7 +367,7 @@ def run_episodes(
         flush=True,
     )
     start = time.perf_counter()
-    jax.block_until_ready(step(policy, first))
+    jax.block_until_ready(step(policy, first, (first.q, first.q)))
     print(f"compiled in {time.perf_counter() - start:.1f} s", flush=True)
 
     records = []
@@ -369,8 +379,10 @@ def run_episodes(
         target = jax.device_get((state.params.target_pos, state.params.target_quat))
         frame = show(np.asarray(state.q))
         tick = time.perf_counter()
+        q0 = state.obs[: env.action_size]
+        held = (q0, q0)  # (targets sent last, joints observed then): the first choice is free
         while True:
-            state, collided = step(policy, state)
+            state, collided, held = step(policy, state, held)
             q, obs, m, terminated, truncated = jax.device_get(
                 (state.q, state.obs, state.metrics, state.terminated, state.truncated)
             )

@@ -87,6 +87,12 @@ def load(path: str | Path) -> Export:
     return Export(path, digest, meta, host_policy(runner.act, int(meta["action_size"])))
 
 
+def commit_rad(meta: dict[str, Any]) -> float:
+    """The export's PolicyConfig.commit_rad (0 for files written before it): the evaluation
+    loop applies it around the file's policy, as the runner does (EvalConfig.commit_rad)."""
+    return float(meta.get("commit_rad", 0.0))
+
+
 def host_policy(fn: Any, action_size: int) -> Any:
     """A jittable pytree callable obs (..., obs_size) -> (..., action_size) float32 that
     runs the host function `fn` ((N, obs_size) float64 -> (N, action_size)) through

@@ -56,8 +56,26 @@ SUFFIXES = (".npz", ".onnx")
 """The exported files: numpy (this module) and ONNX (onnx_policy.py, onnx_graph.py)."""
 OBS_VAR_EPS = 1e-8  # mara_mjx.ppo.networks.normalize
 META_KEY = "__meta__"  # mara_mjx/runtime/npzmeta.py's (tests/test_runner.py holds them equal)
+COMMIT_STALL_RAD = 0.002
+"""rad: an arm none of whose joints moved more than this in a control period has stopped
+(`committed`)."""
 # What reading a damaged or foreign .npz can raise (npzmeta.NPZ_ERRORS)
 _NPZ_ERRORS = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile)
+
+
+def committed(
+    q: Any, new: Any, held: Any, q_previous: Any, tol: float, lower: Any, upper: Any, xp: Any = np
+) -> Any:
+    """PolicyConfig.commit_rad's rule, in numpy or jax.numpy (`xp`), for arrays (..., 6):
+    the joint targets to send at observed joints `q`, given the policy's `new` targets,
+    the targets sent last (`held`) and the joints observed then (`q_previous`). `held` is
+    sent again while the arm has not arrived (some joint farther than `tol` rad from it)
+    and still moves (some joint moved more than COMMIT_STALL_RAD since `q_previous`);
+    otherwise `new`, clipped to [lower, upper]. Start an episode with held = q_previous =
+    q (arrived: the first targets are the policy's)."""
+    arrived = xp.max(xp.abs(q - held), axis=-1, keepdims=True) <= tol
+    stopped = xp.max(xp.abs(q - q_previous), axis=-1, keepdims=True) <= COMMIT_STALL_RAD
+    return xp.where(arrived | stopped, xp.clip(new, lower, upper), held)
 
 
 class ExportError(ValueError):

@@ -25,7 +25,10 @@ motor1..motor6 as the encoders read them; target_pos (3,) or (N, 3) m and target
 base at (0, 0, 0.645) on the table). target_quat None: the export's env target (the
 task's). Returns the joint targets (6,) or (N, 6) float64 rad, clipped to the joint
 limits, for the arm to reach by the next call. The runner keeps each arm's previous joint
-positions (the batch size is fixed from the first step after `reset()`).
+positions and targets (the batch size is fixed from the first step after `reset()`).
+An export with commit_rad > 0 (PolicyConfig.commit_rad) sends the previous targets again
+until the arm is within commit_rad of them on every joint or has stopped, and only then
+the policy's new ones (numpy_policy.committed, the evaluation loop's rule).
 
 The observation is built exactly as the env builds it (mara_mjx/envs/mara.py), from the
 export's `observation_layout`:
@@ -140,6 +143,9 @@ class PolicyRunner:
         ]
         self._quat_err = "quat_err" in self.layout
         self._v = "v" in self.layout
+        self.commit_rad = float(meta.get("commit_rad", 0.0))
+        """rad, > 0: each command is held until the arm arrives or stops (the export's
+        PolicyConfig.commit_rad; numpy_policy.committed)."""
         self.reset()
 
     @classmethod
@@ -173,6 +179,7 @@ class PolicyRunner:
         """A new episode: the arms are at rest (qvel 0 at the next step); the batch size
         is set again by the next step."""
         self._previous: np.ndarray | None = None
+        self._held: np.ndarray | None = None
 
     def observe(self, joint_positions: Any, target_pos: Any, target_quat: Any = None) -> np.ndarray:
         """The observation (obs_size,) or (N, obs_size) float64 the next `step` gives the
@@ -183,14 +190,22 @@ class PolicyRunner:
 
     def step(self, joint_positions: Any, target_pos: Any, target_quat: Any = None) -> np.ndarray:
         """Joint positions (6,) or (N, 6) rad and the target pose -> the joint targets (6,)
-        or (N, 6) float64 rad, clipped to the joint limits (module docstring)."""
+        or (N, 6) float64 rad, clipped to the joint limits (module docstring); with the
+        export's commit_rad, the targets of the last step again while the arm carries them
+        out."""
         q, target_pos, target_quat, single = self._inputs(joint_positions, target_pos, target_quat)
         obs = self._observe(q, target_pos, target_quat)
         action = self._policy(obs)
         if not np.all(np.isfinite(action)):
             raise RunnerError("the policy returned non-finite joint targets; not sent")
         action = np.clip(action, self.joint_lower, self.joint_upper)
-        self._previous = q
+        if self.commit_rad > 0.0:
+            held = q if self._held is None else self._held
+            previous = q if self._previous is None else self._previous
+            action = numpy_policy.committed(
+                q, action, held, previous, self.commit_rad, self.joint_lower, self.joint_upper
+            )
+        self._previous, self._held = q, action
         return action[0] if single else action
 
     # -------------------------------------------------------------- internals

@@ -24,9 +24,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mara_mjx.deploy.numpy_policy import committed
 from mara_mjx.ppo.config import EvalConfig
 from mara_mjx.ppo.parametrisation import check_plan_period
-from mara_mjx.ppo.policy import Policy, rate_limited
+from mara_mjx.ppo.policy import Policy, limit_step
 
 # Spec section 7: mean and std over 10 runs, per axis; mm and degrees.
 PAPER_RESULTS: dict[str, dict[str, tuple[tuple[float, float], ...]]] = {
@@ -151,32 +152,55 @@ def make_evaluate(
             policy = with_deployed(policy, "plan_steps", config.plan_steps)
         if hasattr(policy, "config"):  # a checkpoint's Policy (an exported file has none)
             check_plan_period(policy.config.policy.plan_steps, env)  # (at trace time)
-        if config.rate_limit:
-            policy = rate_limited(policy, max_step, env.joint_lower, env.joint_upper)
+        commit = deployed_commit(policy, config)
+        bounds = (jnp.asarray(env.joint_lower), jnp.asarray(env.joint_upper))
         state = reset(keys, params)
 
+        def act(obs, held, q_previous):
+            """The targets sent (rate-limited when asked) and the targets held."""
+            action = policy(obs)
+            q = obs[..., : action.shape[-1]]
+            if commit > 0.0:
+                action = committed(q, action, held, q_previous, commit, *bounds, xp=jnp)
+            sent = limit_step(action, q, max_step, bounds) if config.rate_limit else action
+            return sent, action, q
+
         def running(carry) -> jax.Array:
-            _, active, _, t = carry
+            _, active, _, t, _ = carry
             return (t < horizon) & jnp.any(active)
 
         def body(carry):
-            state, active, rec, t = carry
-            state = step(state, policy(state.obs))
+            state, active, rec, t, (held, q_previous) = carry
+            sent, held, q_previous = act(state.obs, held, q_previous)
+            state = step(state, sent)
             new = episode_record(state, reached_tolerance(state.metrics, config))
             keep = lambda r, n: jnp.where(  # noqa: E731
                 active.reshape(active.shape + (1,) * (n.ndim - 1)), n, r
             )
             rec = jax.tree.map(keep, rec, new)
             active = active & ~new["reached"] & ~state.terminated & ~state.truncated
-            return state, active, rec, t + 1
+            return state, active, rec, t + 1, (held, q_previous)
 
         active = jnp.ones(config.episodes, bool)
         first = episode_record(state, jnp.zeros(config.episodes, bool))
-        init = (state, active, first, jnp.zeros((), jnp.int32))
-        _, _, rec, _ = jax.lax.while_loop(running, body, init)
+        q0 = state.obs[..., : env.action_size]  # held = q_previous = q: the first choice is free
+        init = (state, active, first, jnp.zeros((), jnp.int32), (q0, q0))
+        _, _, rec, _, _ = jax.lax.while_loop(running, body, init)
         return rec
 
     return jax.jit(evaluate)
+
+
+def deployed_commit(policy: Any, config: EvalConfig) -> float:
+    """The arrival tolerance (rad; 0: off) of PolicyConfig.commit_rad the evaluation
+    applies around `policy`: EvalConfig.commit_rad where >= 0, else the checkpoint
+    policy's own (an exported file's comes in EvalConfig: `evaluate` reads its metadata,
+    `deploy.in_the_loop.commit_rad`)."""
+    if config.commit_rad >= 0.0:
+        return float(config.commit_rad)
+    return float(
+        getattr(getattr(getattr(policy, "config", None), "policy", None), "commit_rad", 0.0)
+    )
 
 
 def with_collision_guard(policy: Any, mm: float) -> Any:

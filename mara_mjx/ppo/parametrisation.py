@@ -28,6 +28,8 @@ IK_PRIORS = ("", "features", "residual")
 
 MAX_PLAN_STEPS = 64
 """The most imagined steps PolicyConfig.plan_steps allows (each costs a policy call)."""
+MAX_COMMIT_RAD = 0.5
+"""The widest arrival tolerance PolicyConfig.commit_rad allows (rad per joint)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -165,6 +167,22 @@ class PolicyConfig(_ConfigMixin):
     plan; near the target the plan and the first step agree. Training is unchanged.
     Needs a MARA arm and the default control period. Export: .onnx traces it; .npz
     refuses it. 0: off."""
+    commit_rad: float = 0.0
+    """Deployed only, rad, > 0: the deployed policy holds each command until the arm has
+    carried it out, and only then chooses again: the joint targets sent last are sent
+    again while the observed joints are not all within this distance of them and the
+    arm still moves (some joint moved more than deploy/numpy_policy.COMMIT_STALL_RAD,
+    0.002 rad, in the last control period); otherwise the policy's new targets, clipped
+    to the joint limits (deploy/numpy_policy.committed, the one rule of the evaluation
+    loop and the robot-side runner). On the train driver every command is carried out
+    within one step, so nothing changes there (but for a colliding command, which the
+    train driver answers with the reset pose: it is sent once more). On servos, where a command takes many
+    steps, a policy (with plan_steps, its imagined landing) asked again at every posture
+    on the way can switch between two solutions for the same pose (elbow up and elbow
+    down) at the posture where they meet and stay there, commanding one then the other
+    (benchmarks/NOTES.md section 43); held commands cross that posture once. Needs a
+    MARA arm. Export: the file's metadata carries it, and the runner and `evaluate
+    policy.onnx` apply it around the graph. 0: off."""
     hidden_obs: tuple[int, ...] = ()
     """Observation indices that neither network sees (set to 0 after normalisation), e.g.
     9 10 11 for the TCP velocity of MARA/MARACollision (13 14 15 for the Orient tasks)."""
@@ -209,6 +227,7 @@ class PolicyConfig(_ConfigMixin):
                 f"plan_steps must be an int in [0, {MAX_PLAN_STEPS}] (imagined train-driver "
                 f"steps; 0: off), got {self.plan_steps!r}"
             )
+        _check_range("commit_rad", self.commit_rad, 0.0, MAX_COMMIT_RAD)
         if self.collision_guard_mm > 0.0 and not self.relative_actions:
             raise ValueError(
                 f"collision_guard_mm={self.collision_guard_mm} shortens the step from the "
@@ -277,6 +296,19 @@ def check_plan_override(plan_steps: Any) -> None:
         )
 
 
+def check_commit_override(commit_rad: Any) -> None:
+    """ValueError unless `commit_rad` is an override of PolicyConfig.commit_rad as the
+    evaluations take it: -1 (as trained or exported), or a valid commit_rad (0: off)."""
+    try:
+        if commit_rad != -1.0:
+            _check_range("commit_rad", commit_rad, 0.0, MAX_COMMIT_RAD)
+    except ValueError:
+        raise ValueError(
+            f"commit_rad must be -1 (as trained) or a number in [0, {MAX_COMMIT_RAD}], "
+            f"got {commit_rad!r}"
+        ) from None
+
+
 def check_plan_period(plan_steps: int, env: Any) -> None:
     """ValueError where a policy with `plan_steps` (> 0) would run on an env whose control
     period is not the default its imagined train-driver steps assume."""
@@ -308,6 +340,7 @@ def resolve(policy: PolicyConfig, env: Any) -> PolicyConfig:
         ("ik_finish", policy.ik_finish, "0"),
         ("collision_guard_mm", policy.collision_guard_mm, "0"),
         ("plan_steps", policy.plan_steps, "0"),
+        ("commit_rad", policy.commit_rad, "0"),
     ):
         if value and not arm:
             raise ValueError(

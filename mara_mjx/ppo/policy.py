@@ -123,7 +123,12 @@ def rate_limited(policy: Any, max_step: Any, lower: Any = None, upper: Any = Non
 
 def _rate_limited_call(policy: Any, max_step: jax.Array, bounds: Any, obs: jax.Array):
     action = policy(obs)
-    q = obs[..., : action.shape[-1]]
+    return limit_step(action, obs[..., : action.shape[-1]], max_step, bounds)
+
+
+def limit_step(action: jax.Array, q: jax.Array, max_step: Any, bounds: Any = None) -> jax.Array:
+    """`rate_limited`'s output stage for joint targets `action` at observed joints `q`."""
+    max_step = jnp.asarray(max_step, jnp.float32)
     finite = jnp.isfinite(action)
     target = jnp.where(finite, action, q)
     if bounds is not None:
