@@ -35,12 +35,8 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 from mara_mjx.cli.common import UserError, parse_bool
 from mara_mjx.runtime import files, outputs
-
-BARS = ((5.0, 2.0), (1.0, 1.0))  # (mm, deg): the issue's "within 5 mm / 2 deg" and "1 mm / 1 deg"
 
 
 def cells(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
@@ -52,23 +48,30 @@ def cells(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
 
 
 def metrics(report: dict) -> dict:
-    """The cell's numbers from an evaluate report's episodes (module docstring)."""
+    """The cell's numbers from an evaluate report's episodes (module docstring), as the
+    robustness study summarises episodes (`bench.robustness_judge.pose_summary`)."""
+    from types import SimpleNamespace
+
+    from mara_mjx.bench.robustness_judge import pose_summary
+
     episodes = report["episodes"]
-    pos = np.array([e["position_error_mm"] for e in episodes], np.float64)
     orientation = "Orient" in report["env_name"]  # the tasks with an orientation target
-    if orientation:
-        ori = np.array([e["orientation_error_deg"] for e in episodes], np.float64)
-    out = {"episodes": len(episodes)}
-    for mm, deg in BARS:
-        ok = np.all(pos <= mm, axis=1)
-        if orientation:
-            ok &= np.all(ori <= deg, axis=1)
-        out[f"within_{mm:g}mm" + (f"_{deg:g}deg" if orientation else "")] = float(np.mean(ok))
-    axes = {"position_mm": pos, **({"orientation_deg": ori} if orientation else {})}
-    for name, x in axes.items():
-        out[name] = {"mean": x.mean(0).tolist(), "p95": np.percentile(x, 95, axis=0).tolist(),
-                     "worst": x.max(0).tolist()}  # fmt: skip
-    out["colliding"] = float(np.mean([e["collisions"] > 0 for e in episodes]))
+    result = SimpleNamespace(
+        position_error_mm=[e["position_error_mm"] for e in episodes],
+        orientation_error_deg=[e["orientation_error_deg"] for e in episodes]
+        if orientation
+        else None,
+        collisions=[e["collisions"] for e in episodes],
+    )
+    s = pose_summary(result, orientation)
+    suffix = ("_2deg", "_1deg") if orientation else ("", "")
+    out = {"episodes": len(episodes),
+           f"within_5mm{suffix[0]}": s["within_5mm_2deg"] if orientation else s["within_5"],
+           f"within_1mm{suffix[1]}": s["within_1"]}  # fmt: skip
+    for name in ("position_mm", "orientation_deg") if orientation else ("position_mm",):
+        stats = s[name]
+        out[name] = {"mean": stats["mean"], "p95": stats["p95"], "worst": stats["max"]}
+    out["colliding"] = s["episodes_colliding"]
     return out
 
 

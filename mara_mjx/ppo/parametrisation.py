@@ -174,15 +174,16 @@ class PolicyConfig(_ConfigMixin):
     arm still moves (some joint moved more than deploy/numpy_policy.COMMIT_STALL_RAD,
     0.002 rad, in the last control period); otherwise the policy's new targets, clipped
     to the joint limits (deploy/numpy_policy.committed, the one rule of the evaluation
-    loop and the robot-side runner). On the train driver every command is carried out
-    within one step, so nothing changes there (but for a colliding command, which the
-    train driver answers with the reset pose: it is sent once more). On servos, where a command takes many
-    steps, a policy (with plan_steps, its imagined landing) asked again at every posture
-    on the way can switch between two solutions for the same pose (elbow up and elbow
-    down) at the posture where they meet and stay there, commanding one then the other
-    (benchmarks/NOTES.md section 43); held commands cross that posture once. Needs a
-    MARA arm. Export: the file's metadata carries it, and the runner and `evaluate
-    policy.onnx` apply it around the graph. 0: off."""
+    loop, `play` and the robot-side runner; applied around the policy, not inside it).
+    On the train driver every command is carried out within one step, so nothing
+    changes there (but for a colliding command, which the train driver answers with the
+    reset pose: it is sent once more). On servos, where a command takes many steps, a
+    policy (with plan_steps, its imagined landing) asked again at every posture on the
+    way can switch between two solutions of the same pose (elbow up and elbow down)
+    where they meet and stay there, commanding one then the other; held commands cross
+    that posture once, and the servos then do what the train driver does (a CPU screen,
+    benchmarks/NOTES.md section 43). Needs a MARA arm. Export: the file's metadata
+    carries it; the runner and `evaluate policy.onnx` apply it around the graph. 0: off."""
     hidden_obs: tuple[int, ...] = ()
     """Observation indices that neither network sees (set to 0 after normalisation), e.g.
     9 10 11 for the TCP velocity of MARA/MARACollision (13 14 15 for the Orient tasks)."""
