@@ -9,10 +9,12 @@ every episode to the horizon.
 
     python benchmarks/commit_screen.py RUN/seed_1164 RUN/seed_1165 ... --out DIR \
         [--poses 128] [--seed 1000] [--velocities 0.3] [--plan_steps 16] [--commit_rad 0.01]
+        [--train_driver false]
 
 Writes DIR/commit_screen.json (per seed and judgement: within 5 mm and 2 deg, within 1 mm
 and 1 deg, episodes colliding; the commands, versions) and DIR/commit_screen.md, both
-after every seed (a screen cut off keeps what ran). Files of those names in DIR are
+after every seed (a screen cut off keeps what ran), and DIR/commit_screen.png (within 5 mm
+and 2 deg per seed, one marker per judgement) at the end. Files of those names in DIR are
 replaced only when an earlier screen wrote them (or with --overwrite).
 """
 
@@ -27,10 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mara_mjx.cli.common import UserError
+from mara_mjx.cli.common import UserError, parse_bool
 from mara_mjx.runtime import files, outputs
 
-OUTPUTS = ("commit_screen.json", "commit_screen.md")
+OUTPUTS = ("commit_screen.json", "commit_screen.md", "commit_screen.png")
 
 
 def ours(out: Path) -> bool:
@@ -50,6 +52,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--velocities", type=float, nargs="+", default=[0.3])
     parser.add_argument("--plan_steps", type=int, default=16)
     parser.add_argument("--commit_rad", type=float, default=0.01)
+    parser.add_argument("--train_driver", type=parse_bool, default=True, metavar="{true,false}",
+                        help="judge on the train driver too (default: true)")  # fmt: skip
     parser.add_argument("--overwrite", action="store_true")
     args = parser.parse_args(argv)
     try:
@@ -72,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     meta = loaded[0][1]
     base = EvalConfig(episodes=args.poses, seed=args.seed, tolerance_mm=0.0,
                       plan_steps=args.plan_steps)  # fmt: skip
-    judgements = [("train", None, 0.0)]
+    judgements = [("train", None, 0.0)] if args.train_driver else []
     judgements += [(f"real {v:g}", v, c) for v in args.velocities for c in (0.0, args.commit_rad)]
     programs = {}
     for name, v, commit in judgements:
@@ -101,6 +105,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{folder.name} {key}: {row['judged'][key]}", flush=True)
         rows.append(row)
         write(args, this, rows, mara_mjx.__version__)
+    figure(args.out / OUTPUTS[2], rows)
     print((args.out / OUTPUTS[1]).read_text())
     return 0
 
@@ -129,6 +134,25 @@ def write(args, this: str, rows: list[dict], version: str) -> None:
         "mara_mjx": version, "poses": args.poses, "seed": args.seed, "rows": rows,
     }  # fmt: skip
     files.write_atomic(args.out / OUTPUTS[0], json.dumps(record, indent=1))
+
+
+def figure(path: Path, rows: list[dict]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    seeds = [Path(r["seed_folder"]).name.removeprefix("seed_") for r in rows]
+    for i, key in enumerate(rows[0]["judged"]):
+        y = [100 * r["judged"][key]["within_5mm_2deg"] for r in rows]
+        ax.plot(np.arange(len(rows)) + 0.12 * (i - 1), y, "o", label=key, alpha=0.8)
+    ax.axhline(99, color="grey", lw=0.8, ls="--")
+    ax.set_xticks(range(len(rows)), seeds, rotation=90, fontsize=7)
+    ax.set(ylabel="poses within 5 mm and 2 deg (%)", xlabel="seed")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
 
 
 if __name__ == "__main__":

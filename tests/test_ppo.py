@@ -967,9 +967,10 @@ def test_rate_limited_keeps_the_direction_and_bounds_every_joint_step():
 
 
 def test_evaluation_rate_limit_uses_the_servo_travel_and_needs_the_real_driver(monkeypatch):
-    """EvalConfig.rate_limit: the evaluation wraps the policy in rate_limited with the
-    servos' travel per step (velocity x substeps x timestep, per episode) and the joint
-    limits; on the train driver it is refused with the reason. Traced, not compiled."""
+    """EvalConfig.rate_limit: the evaluation limits the policy's targets (limit_step, as
+    rate_limited does) to the servos' travel per step (velocity x substeps x timestep,
+    per episode) and the joint limits; on the train driver it is refused with the
+    reason. Traced, not compiled."""
     import mara_mjx
     from mara_mjx.ppo import evaluation
     from mara_mjx.ppo.config import EvalConfig
@@ -977,13 +978,13 @@ def test_evaluation_rate_limit_uses_the_servo_travel_and_needs_the_real_driver(m
     with pytest.raises(ValueError, match="rate_limit=true .* driver is 'train'"):
         evaluation.make_evaluate(mara_mjx.make("MARA"), EvalConfig(rate_limit=True))
     seen = {}
-    real = evaluation.rate_limited
+    real = evaluation.limit_step
 
-    def spy(policy, max_step, lower, upper):
-        seen.update(max_step=max_step, lower=lower)
-        return real(policy, max_step, lower, upper)
+    def spy(action, q, max_step, bounds):
+        seen.update(max_step=max_step, lower=bounds[0])
+        return real(action, q, max_step, bounds)
 
-    monkeypatch.setattr(evaluation, "rate_limited", spy)
+    monkeypatch.setattr(evaluation, "limit_step", spy)
     env = mara_mjx.make("MARA", driver="real", velocity=0.3)
     fn = evaluation.make_evaluate(env, EvalConfig(episodes=2, rate_limit=True))
     base = jax.tree_util.Partial(lambda obs: obs[..., :6] + 0.1)

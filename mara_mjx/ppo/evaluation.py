@@ -153,7 +153,12 @@ def make_evaluate(
         if hasattr(policy, "config"):  # a checkpoint's Policy (an exported file has none)
             check_plan_period(policy.config.policy.plan_steps, env)  # (at trace time)
         commit = deployed_commit(policy, config)
-        bounds = (jnp.asarray(env.joint_lower), jnp.asarray(env.joint_upper))
+        # the joint limits the env clips to (a MARA env's; only where a rule needs them)
+        bounds = (
+            (np.asarray(env.joint_lower, np.float32), np.asarray(env.joint_upper, np.float32))
+            if commit > 0.0 or config.rate_limit
+            else None
+        )
         state = reset(keys, params)
 
         def act(obs, held, q_previous):
