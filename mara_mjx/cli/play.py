@@ -330,18 +330,14 @@ def run_episodes(
     params, keys = episode_plan(env, config)  # evaluate's episodes, one at a time
     reset = jax.jit(env.reset)
 
-    from mara_mjx.deploy.numpy_policy import committed
-    from mara_mjx.ppo.evaluation import deployed_commit
+    from mara_mjx.ppo.evaluation import deployed_commit, held_action
 
     commit = deployed_commit(policy, config)  # held commands (commit_rad), as evaluate's
     bounds = (env.joint_lower, env.joint_upper)
 
     @jax.jit
     def step(policy, state, held):
-        action = policy(state.obs)
-        q = state.obs[: action.shape[-1]]
-        if commit > 0.0:
-            action = committed(q, action, *held, commit, *bounds, xp=jax.numpy)
+        action, q = held_action(policy, state.obs, *held, commit, bounds)
         state = env.step(state, action)
         return state, state.metrics["collided"], (action, q)
 

@@ -163,10 +163,7 @@ def make_evaluate(
 
         def act(obs, held, q_previous):
             """The targets sent (rate-limited when asked) and the targets held."""
-            action = policy(obs)
-            q = obs[..., : action.shape[-1]]
-            if commit > 0.0:
-                action = committed(q, action, held, q_previous, commit, *bounds, xp=jnp)
+            action, q = held_action(policy, obs, held, q_previous, commit, bounds)
             sent = limit_step(action, q, max_step, bounds) if config.rate_limit else action
             return sent, action, q
 
@@ -194,6 +191,20 @@ def make_evaluate(
         return rec
 
     return jax.jit(evaluate)
+
+
+def held_action(
+    policy: Any, obs: jax.Array, held: jax.Array, q_previous: jax.Array, commit: float, bounds
+) -> tuple[jax.Array, jax.Array]:
+    """(targets, observed joints) of `policy` at `obs` under PolicyConfig.commit_rad's rule
+    (`commit` > 0: deploy/numpy_policy.committed with the targets `held` and the joints
+    `q_previous` of the last step, `bounds` the joint limits; 0: the policy's own): the
+    one deployed step of the evaluation loop and `play`."""
+    action = policy(obs)
+    q = obs[..., : action.shape[-1]]
+    if commit > 0.0:
+        action = committed(q, action, held, q_previous, commit, *bounds, xp=jnp)
+    return action, q
 
 
 def deployed_commit(policy: Any, config: EvalConfig) -> float:
