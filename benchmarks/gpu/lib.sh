@@ -20,3 +20,19 @@ study() {
     --out /tmp/res/$name --work_dir /tmp/work/$name > /tmp/res/$name.log 2>&1
   echo "$name DONE $?" >> /tmp/res/studies.log
 }
+#   pack NAME: /tmp/res/NAME and NAME.log into /tmp/res/NAME.tgz (whole or not at all);
+#   cells JOBS P: run a file of deploy_sweep.py argument lines, P at a time (one
+#     1,000-episode cell per line is about 3.5 minutes of one CPU core: onnxruntime on one
+#     thread, the simulator on the GPU), each "cell NAME DONE rc" in studies.log.
+pack() {
+  tar czf /tmp/res/$1.tgz.part -C /tmp/res $(cd /tmp/res && ls -d $1 $1.log 2>/dev/null) && mv /tmp/res/$1.tgz.part /tmp/res/$1.tgz
+}
+cell() {  # NAME ARGS...: one deploy_sweep.py run into /tmp/res/cells/NAME
+  python benchmarks/deploy_sweep.py --out /tmp/res/cells/$1 "${@:2}" > /tmp/res/cells/$1.log 2>&1
+  echo "cell $1 DONE $?" >> /tmp/res/studies.log
+}
+cells() {
+  mkdir -p /tmp/res/cells
+  export -f cell
+  xargs -P "$2" -L 1 bash -c 'cell "$@"' _ < "$1"
+}
