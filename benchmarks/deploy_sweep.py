@@ -5,6 +5,7 @@ sensor latency and encoder miscalibration an exported policy stands.
         --label "MARACollisionOrientRandomTarget, ..." policy_1000.onnx policy_1001.onnx \
         [--velocities 0.3 0.5] [--latencies 0 1 2 3] [--calibrations 0 0.001 0.002 0.004] \
         [--episodes 1000] [--seed 1000] [-- EXTRA EVALUATE FLAGS]
+    python benchmarks/deploy_sweep.py --merge --out OUT --label "..." SWEEP_FOLDER...
 
 For each file and servo speed, `python -m mara_mjx.evaluate FILE --driver real --velocity
 V --randomize --tolerance_mm 0 --episodes N --seed S` (every episode to the horizon, each
@@ -21,7 +22,8 @@ and calibration, one line per file and speed). The JSON and the table are rewrit
 every cell ("complete": false until the last), so a sweep cut off keeps what ran. Files of
 that name in <out> are replaced only when they are an earlier sweep's (or with
 --overwrite): a user's file, a checkpoint or a run folder's file there is refused before
-anything runs.
+anything runs. `--merge` writes the rows of complete sweeps (e.g. one cell each, run one
+per CPU core: benchmarks/gpu/lib.sh's `cells`) as one sweep, each row with its command.
 """
 
 from __future__ import annotations
@@ -114,38 +116,75 @@ def table(rows: list[dict], orientation: bool) -> str:
     return "\n".join(lines)
 
 
-def figure(path: Path, rows: list[dict], args) -> None:
+def figure(path: Path, rows: list[dict], label: str) -> None:
+    """Within 5 mm against latency and against calibration, one line per file and speed
+    (the randomised-only cells of a pick's files: one dot per file and speed)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (ax_l, ax_c) = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
-    for policy in args.policies:
-        for v in args.velocities:
-            mine = [r for r in rows if r["policy"] == policy and r["velocity"] == v]
+    def within5(r):
+        return 100 * next(v for k, v in r["metrics"].items() if k.startswith("within_5"))
 
-            def within5(prefix):
-                return [100 * next(iter(r["metrics"][k] for k in r["metrics"]
-                                        if k.startswith("within_5")))
-                        for r in mine if r["condition"].startswith(prefix)]  # fmt: skip
-
-            label = f"{Path(policy).stem}, {v:g} rad/s"
-            ax_l.plot(args.latencies, within5("latency"), "o-", label=label)
-            ax_c.plot([1000 * c for c in args.calibrations], within5("calibration"), "o-")
+    fig, (ax_l, ax_c, ax_r) = plt.subplots(1, 3, figsize=(13, 4), sharey=True)
+    keys = list(dict.fromkeys((r["policy"], r["velocity"]) for r in rows))
+    for policy, v in keys:
+        mine = [r for r in rows if (r["policy"], r["velocity"]) == (policy, v)]
+        lat = [(int(r["condition"].split()[1]), within5(r)) for r in mine
+               if r["condition"].startswith("latency")]  # fmt: skip
+        cal = [(1000 * float(r["condition"].split()[1]), within5(r)) for r in mine
+               if r["condition"].startswith("calibration")]  # fmt: skip
+        label_ = f"{Path(policy).stem}, {v:g} rad/s"
+        if lat:
+            ax_l.plot(*zip(*lat, strict=True), "o-", label=label_)
+        if cal:
+            ax_c.plot(*zip(*cal, strict=True), "o-", label=label_)
+    for v, marker in ((0.3, "o"), (0.5, "s")):
+        pts = [(Path(r["policy"]).stem, within5(r)) for r in rows
+               if r["condition"] == "randomised" and r["velocity"] == v]  # fmt: skip
+        if pts:
+            ax_r.plot(*zip(*pts, strict=True), marker, linestyle="", label=f"{v:g} rad/s")
     ax_l.set(xlabel="sensor latency (control steps)", ylabel="episodes within 5 mm (%)")
     ax_c.set(xlabel="joint zero offset half-width (mrad)")
-    ax_l.legend(fontsize=7)
-    fig.suptitle(args.label, fontsize=9)
+    ax_r.set(xlabel="file (randomised defaults)")
+    ax_r.tick_params(axis="x", labelrotation=60, labelsize=7)
+    for ax in (ax_l, ax_c, ax_r):
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
+    fig.suptitle(label, fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
+
+
+def merge(args: argparse.Namespace, this: str) -> int:
+    """--merge: the rows of complete sweeps (one folder each, e.g. one cell per machine
+    core) written as one sweep into --out, each row keeping its own command."""
+    rows, versions = [], None
+    for folder in args.policies:
+        data = outputs.read_json(Path(folder) / OUTPUTS[0])
+        if not isinstance(data, dict) or not data.get("complete") or not data.get("rows"):
+            raise SystemExit(f"--merge: {folder} holds no complete deploy_sweep.json")
+        rows += data["rows"]
+        versions = versions or data.get("versions")
+    text = record(args, this, rows, versions, complete=True)
+    figure(args.out / "deploy_sweep.png", rows, args.label)
+    print(text)
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     extra = argv[argv.index("--") + 1 :] if "--" in argv else []
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("policies", nargs="+", help="exported files (.onnx or .npz)")
+    parser.add_argument(
+        "policies", nargs="+", help="exported files (.onnx or .npz); with --merge, sweep folders"
+    )
+    parser.add_argument(
+        "--merge",
+        action="store_true",
+        help="write the rows of the complete sweeps in the folders given as one sweep into --out",
+    )
     parser.add_argument("--out", required=True, type=Path)
     parser.add_argument("--label", default="")
     parser.add_argument("--velocities", type=float, nargs="+", default=[0.3, 0.5])
@@ -166,6 +205,8 @@ def main(argv: list[str] | None = None) -> int:
                                     args.overwrite)  # fmt: skip
     except UserError as e:
         parser.error(str(e))
+    if args.merge:
+        return merge(args, this)
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
         for policy in args.policies:
@@ -179,7 +220,7 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"{Path(policy).name} {v:g} rad/s {name}: {row['metrics']}", flush=True)
                     record(args, this, rows, report.get("versions"), complete=False)
     text = record(args, this, rows, report.get("versions"), complete=True)
-    figure(args.out / "deploy_sweep.png", rows, args)
+    figure(args.out / "deploy_sweep.png", rows, args.label)
     print(text)
     return 0
 
@@ -199,9 +240,12 @@ def record(args, this: str, rows: list[dict], versions, complete: bool) -> str:
     """Writes the JSON and the table of the cells so far; returns the table."""
     text = table(rows, "orientation_deg" in rows[0]["metrics"])
     state = "" if complete else f" Incomplete: {len(rows)} cells so far."
-    head = (f"# {args.label}\n\n`{this}` ({platform.platform()}, CPU; evaluate's versions: "
+    commands = "".join(f"\n- `{c}`" for c in dict.fromkeys(r["command"] for r in rows))
+    head = (f"# {args.label}\n\n`{this}` ({platform.platform()}; the file runs in onnxruntime "
+            f"on one CPU thread, the simulator on evaluate's JAX backend; evaluate's versions: "
             f"{versions}). Every episode to the horizon, on the real driver with randomised "
-            f"physics; each condition changes one randomised parameter.{state}\n")  # fmt: skip
+            f"physics; each condition changes one randomised parameter.{state}\n\n"
+            f"Each row's command:{commands}\n")  # fmt: skip
     files.write_atomic(args.out / "deploy_sweep.json", json.dumps(
         {"command": this, "label": args.label, "platform": platform.platform(),
          "versions": versions, "complete": complete, "rows": rows}, indent=1))  # fmt: skip

@@ -151,3 +151,24 @@ def test_a_corrupted_graph_fails_the_self_check(exported):
     assert onnx_graph.self_check(model, obs, want, 1) <= 1e-4
     with pytest.raises(onnx_graph.OnnxGraphError, match="differs from the JAX policy"):
         onnx_graph.self_check(bad, obs, want, 1)
+
+
+def test_a_planned_policy_is_held_to_the_jits_own_spread(exported):
+    """A plan's check (build_model with plan_steps): each observation within the bound
+    plus what an ulp of input rounding moves the jitted step by (own_spread), and only
+    there: a smooth step has no spread, a chaotic one does."""
+    _, model, meta, step, _ = exported
+    obs = onnx_graph.check_observations(meta, 16)
+    smooth = lambda o: (jnp.sin(o[..., :6]), jnp.sin(o[..., :6]))  # noqa: E731
+    chaotic = lambda o: (jnp.sin(1e8 * o[..., :6]), jnp.sin(o[..., :6]))  # noqa: E731
+    for f, low, high in ((smooth, 0.0, 1e-6), (chaotic, 0.1, 2.0)):
+        spread = onnx_graph.own_spread(f, obs, [np.asarray(x) for x in jax.jit(f)(obs)], 4)
+        assert spread.shape == (16,) and low <= spread.min() and spread.max() <= high
+    want = step(obs)
+    off = [w.copy() for w in want]
+    off[0][3] += 2e-3  # one observation 2e-3 rad off: allowed only where its spread is
+    allowed = np.full(16, 1e-4)
+    with pytest.raises(onnx_graph.OnnxGraphError, match="by 2.0.e-03 where 1e-04 is allowed"):
+        onnx_graph.self_check(model, obs, off, 1, allowed)
+    allowed[3] = 1e-4 + 3e-3
+    assert 1.9e-3 < onnx_graph.self_check(model, obs, off, 1, allowed) < 2.1e-3

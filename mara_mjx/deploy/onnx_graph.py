@@ -37,8 +37,11 @@ Before a model is returned it is checked (`self_check`): onnx.checker's full che
 onnxruntime against the jitted JAX step on `check_observations` (arm poses with
 sigma_min(J) >= 0.05, targets from a millimetre to half a radian of joint motion away):
 max |diff| <= `tolerance` (1e-4 rad) against the jitted step, or else against the
-eager one (JAX's own jit and eager differ by ~1e-4 at float32), else OnnxGraphError and
-nothing is written. A
+eager one (JAX's own jit and eager differ by ~1e-4 at float32); for a policy with a plan
+(PolicyConfig.plan_steps K), 95% of the observations within 1e-4 x (1 + K / 4) and each
+within that plus the jitted step's own spread when its inputs are rounded differently
+(`own_spread`: K imagined steps are chaotic at a few observations). Else OnnxGraphError
+and nothing is written. A
 converter bug must not reach a robot silently (jax2onnx 0.17.1 once lowered a batched
 gather to a wrong GatherND). Near a singular posture (sigma_min(J) at the 0.02 damping)
 any float32 evaluation of the IK step is only good to ~3e-4, JAX's own jit against eager
@@ -57,8 +60,9 @@ import numpy as np
 OPSET = 17
 TOLERANCE = 1e-4
 """rad: onnxruntime against the JAX step on the check observations."""
-PLAN_WORST = 1e-2
-"""rad: the most a planned policy's graph may differ on any check observation (self_check)."""
+ROUNDING_DRAWS = 16
+"""A planned policy's check: how many times each check observation is re-rounded to
+measure the jitted step's own sensitivity (`own_spread`)."""
 MIN_SINGULAR = 0.05
 """The check observations' arm poses: sigma_min of the TCP Jacobian at least this."""
 INSTALL = "pip install 'mara_mjx[export]' (or pip install jax2onnx==0.17.1)"
@@ -129,19 +133,47 @@ def build_model(
     steps = getattr(policy.config.policy, "plan_steps", 0)
     if steps:
         # K imagined steps amplify float32's rounding where the plan is sensitive to its
-        # start: JAX's own jit and eager differ by up to 2.3e-3 rad on 2 of 128 check
-        # observations at K = 16 on a trained random-target policy, ~1e-6 on the rest
-        # (benchmarks/NOTES.md section 42). So: 95% of the observations within the
-        # tolerance x (1 + K / 4), every one within PLAN_WORST
+        # start: on a trained random-target policy at K = 16, one or two of 128 check
+        # observations move the jitted step by 2e-2 to 6e-2 rad when their inputs are
+        # rounded differently by an ulp, ~2e-6 on the rest (benchmarks/NOTES.md sections
+        # 42 and 44). No float32 evaluation, the graph's included, can be held closer there
+        # than that. So: 95% of the observations within the tolerance x (1 + K / 4), and
+        # every one within that bound plus the jitted step's own spread
         bound = tolerance * (1 + steps / 4)
-        diff = self_check(model, obs, want, batch, PLAN_WORST, quantile=(0.95, bound))
-        reference = f"jit; plan_steps: 95% within {bound:.0e}, all within {PLAN_WORST:.0e}"
+        spread = own_spread(step, obs, want)
+        diff = self_check(model, obs, want, batch, bound + spread, quantile=(0.95, bound))
+        reference = (
+            f"jit; plan_steps: 95% within {bound:.0e}, each within it plus the jit's "
+            f"own spread under an ulp of input rounding (largest {spread.max():.1e})"
+        )
     else:
         diff, reference = _check_against_jit_or_eager(model, obs, want, batch, tolerance, step)
     meta = {**meta, "self_check": {
         "observations": len(obs), "max_abs_diff": diff, "reference": reference}}  # fmt: skip
     helper.set_model_props(model, {"mara_mjx": json.dumps(meta)})
     return model
+
+
+def own_spread(
+    step: Callable[[Any], tuple[Any, Any]],
+    obs: np.ndarray,
+    want: list[np.ndarray],
+    draws: int = ROUNDING_DRAWS,
+    seed: int = 0,
+) -> np.ndarray:
+    """(M,) rad: per observation of `obs`, the most the jitted `step`'s outputs move from
+    `want` (its outputs on `obs`) when every input is perturbed by up to two float32 ulps
+    (relative 2**-22), over `draws` draws: how closely any float32 evaluation of the
+    step can agree with it there."""
+    import jax
+
+    jitted, rng, spread = jax.jit(step), np.random.default_rng(seed), np.zeros(len(obs))
+    for _ in range(draws):
+        noisy = (obs * (1 + 2.0**-22 * rng.uniform(-1, 1, obs.shape))).astype(np.float32)
+        got = [np.asarray(x) for x in jitted(noisy)]
+        moved = np.max([np.abs(g - w).max(-1) for g, w in zip(got, want, strict=True)], 0)
+        spread = np.maximum(spread, moved)
+    return spread
 
 
 def _check_against_jit_or_eager(
@@ -185,15 +217,16 @@ def self_check(
     obs: np.ndarray,
     want: list[np.ndarray],
     batch: int | None,
-    tolerance: float = TOLERANCE,
+    tolerance: float | np.ndarray = TOLERANCE,
     quantile: tuple[float, float] | None = None,
 ) -> float:
     """onnx.checker's full check, then max |onnxruntime - want| over both outputs on `obs`
     (M, obs_size), `want` the JAX step's (action, action_clipped), the graph run in chunks
     of `batch` (None: all at once). OnnxGraphError when the
-    checker refuses the model, onnxruntime cannot run it, or the difference exceeds
-    `tolerance` (with `quantile` (f, t): also where fewer than the fraction f of the
-    observations are within t); else the difference (rad)."""
+    checker refuses the model, onnxruntime cannot run it, or an observation's difference
+    exceeds `tolerance` (rad; one for all, or (M,) one per observation; with `quantile`
+    (f, t): also where fewer than the fraction f of the observations are within t); else
+    the largest difference (rad)."""
     import onnx
     import onnxruntime as ort
 
@@ -220,10 +253,13 @@ def self_check(
     rows = np.max([np.abs(g - w).max(-1) for g, w in zip(got, want, strict=True)], 0)
     diff = float(rows.max())
     share_ok = quantile is None or np.mean(rows <= quantile[1]) >= quantile[0]
-    if not (diff <= tolerance and share_ok):
+    allowed = np.broadcast_to(np.asarray(tolerance, np.float64), rows.shape)
+    if not (np.all(rows <= allowed) and share_ok):
+        worst = int(np.argmax(rows - allowed))
         raise OnnxGraphError(
             f"the traced graph differs from the JAX policy by {diff:.2e} rad on "
-            f"{len(obs)} check observations (tolerance {tolerance:.0e}"
+            f"{len(obs)} check observations (by {rows[worst]:.2e} where {allowed[worst]:.0e} "
+            "is allowed"
             + ("" if quantile is None else
                f"; {100 * np.mean(rows <= quantile[1]):.0f}% within {quantile[1]:.0e}, "
                f"{100 * quantile[0]:.0f}% needed")
