@@ -117,42 +117,49 @@ def table(rows: list[dict], orientation: bool) -> str:
 
 
 def figure(path: Path, rows: list[dict], label: str) -> None:
-    """Within 5 mm against latency and against calibration, one line per file and speed
-    (the randomised-only cells of a pick's files: one dot per file and speed)."""
+    """Within 5 mm (solid) and within 1 mm (dashed; and deg on an orientation task)
+    against latency and against calibration, one line per file and speed, and the
+    randomised-default cells one dot per file and speed; panels without cells left out."""
+    import textwrap
+
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    def within5(r):
-        return 100 * next(v for k, v in r["metrics"].items() if k.startswith("within_5"))
+    def within(r, bar):
+        return 100 * next(v for k, v in r["metrics"].items() if k.startswith(f"within_{bar}"))
 
-    fig, (ax_l, ax_c, ax_r) = plt.subplots(1, 3, figsize=(13, 4), sharey=True)
+    panels = [p for p in ("latency", "calibration", "randomised")
+              if any(r["condition"].startswith(p) for r in rows)]  # fmt: skip
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 4.2), sharey=True,
+                             squeeze=False)  # fmt: skip
     keys = list(dict.fromkeys((r["policy"], r["velocity"]) for r in rows))
-    for policy, v in keys:
-        mine = [r for r in rows if (r["policy"], r["velocity"]) == (policy, v)]
-        lat = [(int(r["condition"].split()[1]), within5(r)) for r in mine
-               if r["condition"].startswith("latency")]  # fmt: skip
-        cal = [(1000 * float(r["condition"].split()[1]), within5(r)) for r in mine
-               if r["condition"].startswith("calibration")]  # fmt: skip
-        label_ = f"{Path(policy).stem}, {v:g} rad/s"
-        if lat:
-            ax_l.plot(*zip(*lat, strict=True), "o-", label=label_)
-        if cal:
-            ax_c.plot(*zip(*cal, strict=True), "o-", label=label_)
-    for v, marker in ((0.3, "o"), (0.5, "s")):
-        pts = [(Path(r["policy"]).stem, within5(r)) for r in rows
-               if r["condition"] == "randomised" and r["velocity"] == v]  # fmt: skip
-        if pts:
-            ax_r.plot(*zip(*pts, strict=True), marker, linestyle="", label=f"{v:g} rad/s")
-    ax_l.set(xlabel="sensor latency (control steps)", ylabel="episodes within 5 mm (%)")
-    ax_c.set(xlabel="joint zero offset half-width (mrad)")
-    ax_r.set(xlabel="file (randomised defaults)")
-    ax_r.tick_params(axis="x", labelrotation=60, labelsize=7)
-    for ax in (ax_l, ax_c, ax_r):
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=7)
-    fig.suptitle(label, fontsize=9)
+    for ax, panel in zip(axes[0], panels, strict=True):
+        if panel == "randomised":
+            for v, marker in ((0.3, "o"), (0.5, "s")):
+                mine = [r for r in rows if r["condition"] == panel and r["velocity"] == v]
+                names = [Path(r["policy"]).stem.replace("policy_", "") for r in mine]
+                for bar, fill in ((5, marker), (1, "x")):
+                    ax.plot(names, [within(r, bar) for r in mine], fill, linestyle="",
+                            label=f"{v:g} rad/s, within {bar} mm")  # fmt: skip
+            ax.set(xlabel="file (randomised defaults)")
+            ax.tick_params(axis="x", labelrotation=60, labelsize=7)
+        else:
+            for policy, v in keys:
+                mine = [r for r in rows if (r["policy"], r["velocity"]) == (policy, v)
+                        and r["condition"].startswith(panel)]  # fmt: skip
+                x = [float(r["condition"].split()[1]) * (1000 if panel == "calibration" else 1)
+                     for r in mine]  # fmt: skip
+                name = f"{Path(policy).stem}, {v:g} rad/s"
+                (line,) = ax.plot(x, [within(r, 5) for r in mine], "o-", label=name)
+                ax.plot(x, [within(r, 1) for r in mine], "o--", color=line.get_color())
+            ax.set(xlabel="sensor latency (control steps)" if panel == "latency"
+                   else "joint zero offset half-width (mrad)")  # fmt: skip
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
+    axes[0][0].set(ylabel="episodes within 5 mm (solid) / 1 mm (dashed, x) (%)")
+    fig.suptitle("\n".join(textwrap.wrap(label, 110)), fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
 

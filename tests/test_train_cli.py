@@ -576,3 +576,28 @@ def test_orient_task_default_trains_and_its_checkpoint_runs_without_the_training
     proc = run_module(cli_env, "mara_mjx.export", str(out), str(exported))
     assert proc.returncode != 0 and "--preset default" in proc.stderr, proc.stderr[-2000:]
     assert not exported.exists()
+
+
+def test_a_source_copy_without_git_still_names_its_version_and_commit(monkeypatch, tmp_path):
+    """A copy of the source tree on PYTHONPATH (a GPU machine's): no installed metadata and
+    no .git, yet an artefact records mara_mjx's version and, where the driver exports
+    MARA_MJX_GIT_COMMIT, the commit."""
+    from importlib import metadata
+
+    import mara_mjx
+    from mara_mjx.runtime import runs
+
+    real = metadata.version
+
+    def version(name):
+        if name == "mara_mjx":
+            raise metadata.PackageNotFoundError(name)
+        return real(name)
+
+    monkeypatch.setattr(runs.metadata, "version", version)
+    assert runs.versions()["mara_mjx"] == mara_mjx.__version__
+    monkeypatch.setattr(runs, "__file__", str(tmp_path / "mara_mjx" / "runtime" / "runs.py"))
+    monkeypatch.delenv(runs.GIT_COMMIT_ENV, raising=False)
+    assert runs.git_commit() is None
+    monkeypatch.setenv(runs.GIT_COMMIT_ENV, "0123abc")
+    assert runs.git_commit() == "0123abc"

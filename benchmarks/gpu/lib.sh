@@ -7,6 +7,13 @@
 #   study NAME OFFSET EVAL_SEED RECIPE [FLAGS...]: one MARACollision robustness study of 16
 #     seeds, judged on the real driver without the rate limit, into /tmp/res/NAME, its
 #     "NAME DONE rc" line appended to /tmp/res/studies.log.
+#   pack NAME: /tmp/res/NAME and NAME.log into /tmp/res/NAME.tgz (whole or not at all);
+#   cells JOBS P: run a file of deploy_sweep.py argument lines, P at a time (one
+#     1,000-episode cell per line took 4-5 minutes of one CPU core on an H200 host,
+#     14 at once beside a training run: onnxruntime on one thread, the simulator on the GPU), each "cell NAME DONE rc" in studies.log.
+#   the copy of the tree has no .git: the commit it was sent from is read from SOURCE_COMMIT
+#     (written here before a run, `git rev-parse HEAD > SOURCE_COMMIT`, carried) into
+#     MARA_MJX_GIT_COMMIT, which every artefact's git_commit then records.
 export XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUFFERED=1 JAX_DEFAULT_MATMUL_PRECISION=highest JAX_COMPILATION_CACHE_DIR=/tmp/jaxcache JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0
 mkdir -p /tmp/res
 keep() {
@@ -20,10 +27,6 @@ study() {
     --out /tmp/res/$name --work_dir /tmp/work/$name > /tmp/res/$name.log 2>&1
   echo "$name DONE $?" >> /tmp/res/studies.log
 }
-#   pack NAME: /tmp/res/NAME and NAME.log into /tmp/res/NAME.tgz (whole or not at all);
-#   cells JOBS P: run a file of deploy_sweep.py argument lines, P at a time (one
-#     1,000-episode cell per line is about 3.5 minutes of one CPU core: onnxruntime on one
-#     thread, the simulator on the GPU), each "cell NAME DONE rc" in studies.log.
 pack() {
   tar czf /tmp/res/$1.tgz.part -C /tmp/res $(cd /tmp/res && ls -d $1 $1.log 2>/dev/null) && mv /tmp/res/$1.tgz.part /tmp/res/$1.tgz
 }
@@ -36,3 +39,4 @@ cells() {
   export -f cell
   xargs -P "$2" -L 1 bash -c 'cell "$@"' _ < "$1"
 }
+if [ -f SOURCE_COMMIT ]; then export MARA_MJX_GIT_COMMIT=$(cat SOURCE_COMMIT); fi

@@ -343,17 +343,27 @@ def versions() -> dict[str, Any]:
             out[package] = metadata.version(package)
         except metadata.PackageNotFoundError:
             out[package] = None
+    if out["mara_mjx"] is None:  # run from a source tree on PYTHONPATH, not installed
+        from mara_mjx import __version__
+
+        out["mara_mjx"] = __version__
     out["jax_backend"] = jax.default_backend()
     out["devices"] = [str(d.device_kind) for d in jax.devices()]
     return out
 
 
+GIT_COMMIT_ENV = "MARA_MJX_GIT_COMMIT"
+"""Names the commit of a copy of the source tree without its .git (e.g. the one a GPU
+machine runs: benchmarks/gpu/lib.sh reads it from the tree's SOURCE_COMMIT file)."""
+
+
 def git_commit() -> str | None:
-    """HEAD of the source checkout this package runs from ('+dirty' if modified), or None
-    (an installed package: its folder is no checkout of mara_mjx)."""
+    """HEAD of the source checkout this package runs from ('+dirty' if modified); for a
+    copy without .git, $MARA_MJX_GIT_COMMIT if set; else None (an installed package: its
+    folder is no checkout of mara_mjx)."""
     root = Path(__file__).resolve().parents[1]
     if not (root / "pyproject.toml").is_file() or not (root / ".git").exists():
-        return None
+        return os.environ.get(GIT_COMMIT_ENV) or None
     try:
         commit = subprocess.run(
             ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=5
