@@ -12,9 +12,14 @@
 #     held commands (--commit_rad 0.01) at latency 0-3 steps and zero offsets 0-4 mrad,
 #     and section 42's 16 files held, randomised, at both speeds (the recipe without a
 #     pick). Then the picks' files in the loop at both speeds.
-#   bash anypose_44.sh B   what A did not reach: the picks exported from sweep_in/ck_mcort_sel.tgz
-#     (or their files from sweep_in/onnx_mcort_sel.tgz) and run in the loop; GPU beside it:
-#     the plain recipe (no --randomize), 16 seeds from 1296, judged the same way.
+#   bash anypose_44.sh picks NAME OFFSET "RECIPE"   the same for any recipe and 32 seeds
+#     from OFFSET, without the CPU cells of section 42's files: for the next device session,
+#     `picks mcort_sel2 1264 "$R"` (8 more picks: 16 in all) and `picks plain 1296 "cli
+#     --train_clearance_penalty 1 --plan_steps 16 --commit_rad 0.01"` (the plain recipe:
+#     no randomised physics in training, judged with it). One per machine (~25 minutes).
+# A needs section 42's files carried as sweep_in/onnx42.tgz (carry "sweep_in": it is
+# excluded from git, 3.4 MB). On the run of section 44 the held42 cells were stopped by
+# hand after 4 (device time); only the sweep and the picks' cells completed.
 # Results in /tmp/res/*.tgz (cells_*.tgz: one deploy_sweep folder per cell).
 cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
@@ -30,18 +35,19 @@ mcort() {  # NAME RECIPE FLAGS...: a MARACollisionOrientRandomTarget study on th
   echo "$n DONE $?" >> /tmp/res/studies.log
   pack $n
 }
-picks() {  # NAME: the judged seeds of /tmp/res/NAME's study
+picks_of() {  # NAME: the judged seeds of /tmp/res/NAME's study
   python -c "import json,sys; print(*[r['seed'] for r in json.load(open(sys.argv[1]))['records'] if r['kind'] == 'seed'])" /tmp/res/$1/robustness.json
 }
 export_all() {  # RUN OUT SEEDS...: each seed of RUN exported to OUT/policy_S.onnx, 8 at a time
-  local run=$1 out=$2 i=0
+  local run=$1 out=$2 pids=()
   shift 2
   mkdir -p $out
-  for s in "$@"; do
+  for s in "$@"; do  # (its own jobs only: A's CPU cells run on beside them)
     JAX_PLATFORMS=cpu python -m mara_mjx.export "$run/seed_$s" $out/policy_$s.onnx > $out/export_$s.log 2>&1 &
-    i=$((i + 1)); [ $((i % 8)) -eq 0 ] && wait
+    pids+=($!)
+    [ ${#pids[@]} -eq 8 ] && { wait "${pids[@]}"; pids=(); }
   done
-  wait
+  [ ${#pids[@]} -gt 0 ] && wait "${pids[@]}"
   echo "export $(basename $out) DONE $(ls $out/*.onnx | wc -l)" >> /tmp/res/studies.log
   tar czf /tmp/res/$(basename $out).tgz.part -C /tmp/res $(basename $out) && mv /tmp/res/$(basename $out).tgz.part /tmp/res/$(basename $out).tgz
 }
@@ -54,6 +60,16 @@ loops() {  # NAME LABEL P: every file of /tmp/res/onnx_NAME at both speeds, rand
   done > /tmp/res/jobs_loop_$1
   cells /tmp/res/jobs_loop_$1 $3
   tar czf /tmp/res/cells_loop_$1.tgz.part -C /tmp/res/cells $(cd /tmp/res/cells && ls -d loop_$1_*) && mv /tmp/res/cells_loop_$1.tgz.part /tmp/res/cells_loop_$1.tgz
+}
+picks() {  # NAME OFFSET RECIPE: 8 picks of 4 among 32 seeds from OFFSET, exported, in the loop
+  local n=$1 offset=$2 recipe=$3 run p
+  mcort $n "$recipe" --seeds 8 --seed_offset $offset --select 4
+  run=$(ls -d /tmp/work/$n/runs/*/ | head -1)
+  p=$(picks_of $n)
+  tar czf /tmp/res/ck_$n.tgz.part -C "$run" $(cd "$run" && for s in $p; do echo seed_$s/config.json seed_$s/checkpoints/$(ls seed_$s/checkpoints | sort | tail -1); done) && mv /tmp/res/ck_$n.tgz.part /tmp/res/ck_$n.tgz
+  export_all "$run" /tmp/res/onnx_$n $p
+  wait  # (A: the CPU cells started beside the training)
+  loops $n "MARACollisionOrientRandomTarget, $recipe, pick of 4, exported .onnx" 14
 }
 case $1 in
   A)
@@ -75,25 +91,9 @@ case $1 in
     done >> /tmp/res/jobs_a
     (cells /tmp/res/jobs_a 12
      tar czf /tmp/res/cells_a.tgz.part -C /tmp/res/cells $(cd /tmp/res/cells && ls -d sw1164_* held42_*) && mv /tmp/res/cells_a.tgz.part /tmp/res/cells_a.tgz) &
-    mcort mcort_sel "$R" --seeds 8 --seed_offset 1232 --select 4
-    run=$(ls -d /tmp/work/mcort_sel/runs/*/ | head -1)
-    p=$(picks mcort_sel)
-    tar czf /tmp/res/ck_mcort_sel.tgz.part -C "$run" $(cd "$run" && for s in $p; do echo seed_$s/config.json seed_$s/checkpoints/$(ls seed_$s/checkpoints | sort | tail -1); done) && mv /tmp/res/ck_mcort_sel.tgz.part /tmp/res/ck_mcort_sel.tgz
-    export_all "$run" /tmp/res/onnx_mcort_sel $p
-    wait
-    loops mcort_sel "MARACollisionOrientRandomTarget, $R, pick of 4, exported .onnx" 14
+    picks mcort_sel 1232 "$R"
     ;;
-  B)
-    if [ -e sweep_in/onnx_mcort_sel.tgz ]; then
-      tar xzf sweep_in/onnx_mcort_sel.tgz -C /tmp/res
-    else
-      mkdir -p /tmp/ck && tar xzf sweep_in/ck_mcort_sel.tgz -C /tmp/ck
-      export_all /tmp/ck /tmp/res/onnx_mcort_sel $(cd /tmp/ck && ls -d seed_* | sed s/seed_//)
-    fi
-    mcort plain "cli --train_clearance_penalty 1 --plan_steps 16 --commit_rad 0.01" --seeds 16 --seed_offset 1296 &
-    loops mcort_sel "MARACollisionOrientRandomTarget, $R, pick of 4, exported .onnx" 14
-    wait
-    ;;
-  *) echo "usage: anypose_44.sh A|B" >&2; exit 2 ;;
+  picks) picks "$2" "$3" "$4" ;;
+  *) echo "usage: anypose_44.sh A | picks NAME OFFSET RECIPE" >&2; exit 2 ;;
 esac
 echo DRIVER_DONE >> /tmp/res/studies.log
