@@ -132,8 +132,8 @@ def figure(path: Path, rows: list[dict], label: str) -> None:
 
     panels = [p for p in ("latency", "calibration", "randomised")
               if any(r["condition"].startswith(p) for r in rows)]  # fmt: skip
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 4.2), sharey=True,
-                             squeeze=False)  # fmt: skip
+    width = max(7.0, 4.5 * len(panels))
+    fig, axes = plt.subplots(1, len(panels), figsize=(width, 4.6), sharey=True, squeeze=False)
     keys = list(dict.fromkeys((r["policy"], r["velocity"]) for r in rows))
     for ax, panel in zip(axes[0], panels, strict=True):
         if panel == "randomised":
@@ -158,8 +158,8 @@ def figure(path: Path, rows: list[dict], label: str) -> None:
                    else "joint zero offset half-width (mrad)")  # fmt: skip
         ax.legend(fontsize=7)
         ax.grid(alpha=0.3)
-    axes[0][0].set(ylabel="episodes within 5 mm (solid) / 1 mm (dashed, x) (%)")
-    fig.suptitle("\n".join(textwrap.wrap(label, 110)), fontsize=9)
+    axes[0][0].set(ylabel="episodes within 5 mm / within 1 mm (%)")
+    fig.suptitle("\n".join(textwrap.wrap(label, int(width * 15))), fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
 
