@@ -159,7 +159,7 @@ def figure(path: Path, rows: list[dict], label: str) -> None:
         ax.legend(fontsize=7)
         ax.grid(alpha=0.3)
     axes[0][0].set(ylabel="episodes within 5 mm / within 1 mm (%)")
-    fig.suptitle("\n".join(textwrap.wrap(label, int(width * 15))), fontsize=9)
+    fig.suptitle("\n".join(textwrap.wrap(label, int(width * 12))), fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
 

@@ -22,6 +22,7 @@ REPO = Path(__file__).resolve().parents[1]
 # mara_mjx would import JAX: 1.5 s a process)
 CHILD = r"""
 import importlib.util, os, signal, sys, time
+signal.signal(signal.SIGHUP, signal.SIG_DFL)  # not ignored as under nohup: a user's default
 spec = importlib.util.spec_from_file_location("supervise", sys.argv[2])
 supervise = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(supervise)
