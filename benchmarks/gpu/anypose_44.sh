@@ -25,16 +25,6 @@ cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
 rm -f /tmp/res/studies.log /tmp/res/sent
 R="cli --randomize --train_clearance_penalty 1 --plan_steps 16 --commit_rad 0.01"
-mcort() {  # NAME RECIPE FLAGS...: a MARACollisionOrientRandomTarget study on the real driver
-  local n=$1 recipe=$2
-  shift 2
-  python -m mara_mjx.benchmark robustness --eval_seed 1000 \
-    --tasks MARACollisionOrientRandomTarget --recipes "$recipe" \
-    --real_driver --rate_limit false "$@" --out /tmp/res/$n --work_dir /tmp/work/$n \
-    > /tmp/res/$n.log 2>&1
-  echo "$n DONE $?" >> /tmp/res/studies.log
-  pack $n
-}
 picks_of() {  # NAME: the judged seeds of /tmp/res/NAME's study
   python -c "import json,sys; print(*[r['seed'] for r in json.load(open(sys.argv[1]))['records'] if r['kind'] == 'seed'])" /tmp/res/$1/robustness.json
 }

@@ -7,6 +7,8 @@
 #   study NAME OFFSET EVAL_SEED RECIPE [FLAGS...]: one MARACollision robustness study of 16
 #     seeds, judged on the real driver without the rate limit, into /tmp/res/NAME, its
 #     "NAME DONE rc" line appended to /tmp/res/studies.log.
+#   mcort NAME RECIPE FLAGS...: one MARACollisionOrientRandomTarget robustness study (real
+#     driver without the rate limit, evaluation seed 1000) into /tmp/res/NAME, packed;
 #   pack NAME: /tmp/res/NAME and NAME.log into /tmp/res/NAME.tgz (whole or not at all);
 #   cells JOBS P: run a file of deploy_sweep.py argument lines, P at a time (one
 #     1,000-episode cell per line took 4-5 minutes of one CPU core on an H200 host,
@@ -29,6 +31,16 @@ study() {
 }
 pack() {
   tar czf /tmp/res/$1.tgz.part -C /tmp/res $(cd /tmp/res && ls -d $1 $1.log 2>/dev/null) && mv /tmp/res/$1.tgz.part /tmp/res/$1.tgz
+}
+mcort() {
+  local n=$1 recipe=$2
+  shift 2
+  python -m mara_mjx.benchmark robustness --eval_seed 1000 \
+    --tasks MARACollisionOrientRandomTarget --recipes "$recipe" \
+    --real_driver --rate_limit false "$@" --out /tmp/res/$n --work_dir /tmp/work/$n \
+    > /tmp/res/$n.log 2>&1
+  echo "$n DONE $?" >> /tmp/res/studies.log
+  pack $n
 }
 cell() {  # NAME ARGS...: one deploy_sweep.py run into /tmp/res/cells/NAME
   python benchmarks/deploy_sweep.py --out /tmp/res/cells/$1 "${@:2}" > /tmp/res/cells/$1.log 2>&1

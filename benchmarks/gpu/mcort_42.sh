@@ -14,16 +14,9 @@
 # checkpoint to /tmp/res/ck_NAME.tgz. Launch with setsid and follow with poll.sh.
 cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
-run() {  # NAME RECIPE FLAGS...
-  local n=$1 recipe=$2
-  shift 2
-  python -m mara_mjx.benchmark robustness --eval_seed 1000 \
-    --tasks MARACollisionOrientRandomTarget --recipes "$recipe" \
-    --real_driver --rate_limit false "$@" --out /tmp/res/$n --work_dir /tmp/work/$n \
-    > /tmp/res/$n.log 2>&1
-  echo "$n DONE $?" >> /tmp/res/studies.log
-  tar czf /tmp/res/$n.tgz.part -C /tmp/res $n $n.log && mv /tmp/res/$n.tgz.part /tmp/res/$n.tgz
-  keep "$(ls -d /tmp/work/$n/runs/*/ | head -1)" /tmp/res/ck_$n.tgz
+run() {  # NAME RECIPE FLAGS...: lib.sh's mcort, then the seeds' checkpoints kept
+  mcort "$@"
+  keep "$(ls -d /tmp/work/$1/runs/*/ | head -1)" /tmp/res/ck_$1.tgz
 }
 rm -f /tmp/res/studies.log /tmp/res/sent
 case $1 in
