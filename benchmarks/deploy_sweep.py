@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -137,7 +138,8 @@ def figure(path: Path, rows: list[dict], label: str) -> None:
     keys = list(dict.fromkeys((r["policy"], r["velocity"]) for r in rows))
     for ax, panel in zip(axes[0], panels, strict=True):
         if panel == "randomised":
-            for v, marker in ((0.3, "o"), (0.5, "s")):
+            speeds = sorted({r["velocity"] for r in rows if r["condition"] == panel})
+            for v, marker in zip(speeds, "osD^v<>", strict=False):
                 mine = [r for r in rows if r["condition"] == panel and r["velocity"] == v]
                 names = [Path(r["policy"]).stem.replace("policy_", "") for r in mine]
                 for bar, fill in ((5, marker), (1, "x")):
@@ -149,8 +151,11 @@ def figure(path: Path, rows: list[dict], label: str) -> None:
             for policy, v in keys:
                 mine = [r for r in rows if (r["policy"], r["velocity"]) == (policy, v)
                         and r["condition"].startswith(panel)]  # fmt: skip
-                x = [float(r["condition"].split()[1]) * (1000 if panel == "calibration" else 1)
-                     for r in mine]  # fmt: skip
+                if not mine:
+                    continue
+                scale = 1000 if panel == "calibration" else 1
+                mine.sort(key=lambda r: float(r["condition"].split()[1]))
+                x = [float(r["condition"].split()[1]) * scale for r in mine]
                 name = f"{Path(policy).stem}, {v:g} rad/s"
                 (line,) = ax.plot(x, [within(r, 5) for r in mine], "o-", label=name)
                 ax.plot(x, [within(r, 1) for r in mine], "o--", color=line.get_color())
@@ -165,16 +170,27 @@ def figure(path: Path, rows: list[dict], label: str) -> None:
 
 
 def merge(args: argparse.Namespace, this: str) -> int:
-    """--merge: the rows of complete sweeps (one folder each, e.g. one cell per machine
-    core) written as one sweep into --out, each row keeping its own command."""
-    rows, versions = [], None
+    """--merge: the rows of complete sweeps of one task (one folder each, e.g. one cell
+    per machine core) written as one sweep into --out, each row keeping its own command;
+    the parts' commands, platforms and versions listed in the JSON's "parts"."""
+    rows, parts, seen = [], [], set()
     for folder in args.policies:
-        data = outputs.read_json(Path(folder) / OUTPUTS[0])
+        path = Path(folder).resolve()
+        data = outputs.read_json(path / OUTPUTS[0])
+        if path in seen:
+            raise SystemExit(f"--merge: {folder} is given twice")
         if not isinstance(data, dict) or not data.get("complete") or not data.get("rows"):
-            raise SystemExit(f"--merge: {folder} holds no complete deploy_sweep.json")
+            what = "no deploy_sweep.json" if data is None else "an incomplete deploy_sweep.json"
+            raise SystemExit(f"--merge: {folder} holds {what}")
+        seen.add(path)
         rows += data["rows"]
-        versions = versions or data.get("versions")
-    text = record(args, this, rows, versions, complete=True)
+        parts.append({k: data.get(k) for k in ("command", "platform", "versions")})
+    tasks = sorted({r["env_name"] for r in rows})
+    if len(tasks) > 1:
+        raise SystemExit(f"--merge: the sweeps are of several tasks ({', '.join(tasks)})")
+    same = all(p["versions"] == parts[0]["versions"] for p in parts)
+    versions = parts[0]["versions"] if same else "per part (the JSON's parts)"
+    text = record(args, this, rows, versions, complete=True, parts=parts)
     figure(args.out / "deploy_sweep.png", rows, args.label)
     print(text)
     return 0
@@ -206,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="replace deploy_sweep.* in --out that no sweep wrote")  # fmt: skip
     args = parser.parse_args(argv[: argv.index("--")] if "--" in argv else argv)
     args.extra = extra
-    this = "python benchmarks/deploy_sweep.py " + " ".join(argv)
+    this = "python benchmarks/deploy_sweep.py " + shlex.join(argv)
     try:
         outputs.check_output_folder(args.out, OUTPUTS, "--out", lambda: ours(args.out),
                                     args.overwrite)  # fmt: skip
@@ -243,19 +259,21 @@ def ours(out: Path) -> bool:
     )
 
 
-def record(args, this: str, rows: list[dict], versions, complete: bool) -> str:
+def record(args, this: str, rows: list[dict], versions, complete: bool, parts=None) -> str:
     """Writes the JSON and the table of the cells so far; returns the table."""
     text = table(rows, "orientation_deg" in rows[0]["metrics"])
     state = "" if complete else f" Incomplete: {len(rows)} cells so far."
     commands = "".join(f"\n- `{c}`" for c in dict.fromkeys(r["command"] for r in rows))
-    head = (f"# {args.label}\n\n`{this}` ({platform.platform()}; the file runs in onnxruntime "
-            f"on one CPU thread, the simulator on evaluate's JAX backend; evaluate's versions: "
-            f"{versions}). Every episode to the horizon, on the real driver with randomised "
-            f"physics; each condition changes one randomised parameter.{state}\n\n"
-            f"Each row's command:{commands}\n")  # fmt: skip
+    where = ("merged here: " if parts else "") + platform.platform()
+    head = (f"# {args.label}\n\n`{this}` ({where}; an .onnx file runs in onnxruntime on one "
+            f"CPU thread, an .npz in numpy, the simulator on evaluate's JAX backend; "
+            f"evaluate's versions: {versions}). Every episode to the horizon, on the real "
+            f"driver with randomised physics; each condition changes one randomised "
+            f"parameter.{state}\n\nEach row's command:{commands}\n")  # fmt: skip
     files.write_atomic(args.out / "deploy_sweep.json", json.dumps(
         {"command": this, "label": args.label, "platform": platform.platform(),
-         "versions": versions, "complete": complete, "rows": rows}, indent=1))  # fmt: skip
+         "versions": versions, "complete": complete, "rows": rows,
+         **({"parts": parts} if parts else {})}, indent=1))  # fmt: skip
     files.write_atomic(args.out / "deploy_sweep.md", head + "\n" + text + "\n")
     return text
 

@@ -168,7 +168,13 @@ def test_a_planned_policy_is_held_to_the_jits_own_spread(exported):
     off = [w.copy() for w in want]
     off[0][3] += 2e-3  # one observation 2e-3 rad off: allowed only where its spread is
     allowed = np.full(16, 1e-4)
-    with pytest.raises(onnx_graph.OnnxGraphError, match="by 2.0.e-03 where 1e-04 is allowed"):
+    with pytest.raises(
+        onnx_graph.OnnxGraphError,
+        match="1 beyond their tolerance, the worst by 2.0.e-03 where 1.00e-04 is allowed",
+    ):
         onnx_graph.self_check(model, obs, off, 1, allowed)
     allowed[3] = 1e-4 + 3e-3
     assert 1.9e-3 < onnx_graph.self_check(model, obs, off, 1, allowed) < 2.1e-3
+    off[0][5] = np.nan  # a non-finite reference is never within any allowance
+    with pytest.raises(onnx_graph.OnnxGraphError, match="1 beyond their tolerance"):
+        onnx_graph.self_check(model, obs, off, 1, allowed + 1.0)

@@ -119,6 +119,7 @@ def test_plan_steps_exports_to_onnx_and_matches(tmp_path):
     import onnx
 
     meta = json.loads({p.key: p.value for p in onnx.load(str(out)).metadata_props}["mara_mjx"])
+    assert "own spread" in meta["self_check"]["reference"]  # the planned policy's rule
     obs = onnx_graph.check_observations(meta, 16)
     session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
     (got,) = session.run(["action"], {"obs": obs})

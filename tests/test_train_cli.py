@@ -596,6 +596,7 @@ def test_a_source_copy_without_git_still_names_its_version_and_commit(monkeypatc
 
     monkeypatch.setattr(runs.metadata, "version", version)
     assert runs.versions()["mara_mjx"] == mara_mjx.__version__
+    (tmp_path / "pyproject.toml").touch()  # a source copy: the tree, but no .git
     monkeypatch.setattr(runs, "__file__", str(tmp_path / "mara_mjx" / "runtime" / "runs.py"))
     monkeypatch.delenv(runs.GIT_COMMIT_ENV, raising=False)
     assert runs.git_commit() is None

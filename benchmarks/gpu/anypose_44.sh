@@ -12,9 +12,9 @@
 #     held commands (--commit_rad 0.01) at latency 0-3 steps and zero offsets 0-4 mrad,
 #     and section 42's 16 files held, randomised, at both speeds (the recipe without a
 #     pick). Then the picks' files in the loop at both speeds.
-#   bash anypose_44.sh picks NAME OFFSET "RECIPE"   the same for any recipe and 32 seeds
+#   bash anypose_44.sh picks NAME OFFSET ["RECIPE"]   the same (RECIPE: default $R, A's) for 32 seeds
 #     from OFFSET, without the CPU cells of section 42's files: for the next device session,
-#     `picks mcort_sel2 1264 "$R"` (8 more picks: 16 in all) and `picks plain 1296 "cli
+#     `picks mcort_sel2 1264` (8 more picks: 16 in all) and `picks plain 1296 "cli
 #     --train_clearance_penalty 1 --plan_steps 16 --commit_rad 0.01"` (the plain recipe:
 #     no randomised physics in training, judged with it). One per machine (~25 minutes).
 # A needs section 42's files carried as sweep_in/onnx42.tgz (carry "sweep_in": it is
@@ -45,7 +45,7 @@ loops() {  # NAME LABEL P: every file of /tmp/res/onnx_NAME at both speeds, rand
   for f in /tmp/res/onnx_$1/policy_*.onnx; do
     s=$(basename $f .onnx); s=${s#policy_}
     for v in 0.3 0.5; do
-      echo "loop_${1}_${s}_$v $f --label '$2' --velocities $v --latencies --calibrations"
+      printf '%q ' "loop_${1}_${s}_$v" "$f" --label "$2" --velocities $v --latencies --calibrations; echo
     done
   done > /tmp/res/jobs_loop_$1
   cells /tmp/res/jobs_loop_$1 $3
@@ -56,6 +56,7 @@ picks() {  # NAME OFFSET RECIPE: 8 picks of 4 among 32 seeds from OFFSET, export
   mcort $n "$recipe" --seeds 8 --seed_offset $offset --select 4
   run=$(ls -d /tmp/work/$n/runs/*/ | head -1)
   p=$(picks_of $n)
+  [ -n "$p" ] || { echo "picks $n: the study judged no seed (see $n.log)" >> /tmp/res/studies.log; return 1; }
   tar czf /tmp/res/ck_$n.tgz.part -C "$run" $(cd "$run" && for s in $p; do echo seed_$s/config.json seed_$s/checkpoints/$(ls seed_$s/checkpoints | sort | tail -1); done) && mv /tmp/res/ck_$n.tgz.part /tmp/res/ck_$n.tgz
   export_all "$run" /tmp/res/onnx_$n $p
   wait  # (A: the CPU cells started beside the training)
@@ -68,22 +69,22 @@ case $1 in
     L="MARACollisionOrientRandomTarget, cli --randomize --train_clearance_penalty 1 --plan_steps 16 (section 42), exported .onnx, held in the loop (--commit_rad 0.01)"
     for v in 0.3 0.5; do
       for k in 0 1 2 3; do
-        echo "sw1164_${v}_lat$k $f --label '$L' --velocities $v --randomised false --latencies $k --calibrations -- --commit_rad 0.01"
+        printf '%q ' "sw1164_${v}_lat$k" $f --label "$L" --velocities $v --randomised false --latencies $k --calibrations -- --commit_rad 0.01; echo
       done
       for c in 0 0.001 0.002 0.004; do
-        echo "sw1164_${v}_cal$c $f --label '$L' --velocities $v --randomised false --latencies --calibrations $c -- --commit_rad 0.01"
+        printf '%q ' "sw1164_${v}_cal$c" $f --label "$L" --velocities $v --randomised false --latencies --calibrations $c -- --commit_rad 0.01; echo
       done
     done > /tmp/res/jobs_a
     for s in $(seq 1164 1179); do
       for v in 0.3 0.5; do
-        echo "held42_${s}_$v /tmp/onnx42/policy_$s.onnx --label '$L' --velocities $v --latencies --calibrations -- --commit_rad 0.01"
+        printf '%q ' "held42_${s}_$v" /tmp/onnx42/policy_$s.onnx --label "$L" --velocities $v --latencies --calibrations -- --commit_rad 0.01; echo
       done
     done >> /tmp/res/jobs_a
     (cells /tmp/res/jobs_a 12
      tar czf /tmp/res/cells_a.tgz.part -C /tmp/res/cells $(cd /tmp/res/cells && ls -d sw1164_* held42_*) && mv /tmp/res/cells_a.tgz.part /tmp/res/cells_a.tgz) &
     picks mcort_sel 1232 "$R"
     ;;
-  picks) picks "$2" "$3" "$4" ;;
+  picks) picks "$2" "$3" "${4:-$R}" ;;
   *) echo "usage: anypose_44.sh A | picks NAME OFFSET RECIPE" >&2; exit 2 ;;
 esac
 echo DRIVER_DONE >> /tmp/res/studies.log

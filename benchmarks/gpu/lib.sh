@@ -10,11 +10,13 @@
 #   mcort NAME RECIPE FLAGS...: one MARACollisionOrientRandomTarget robustness study (real
 #     driver without the rate limit, evaluation seed 1000) into /tmp/res/NAME, packed;
 #   pack NAME: /tmp/res/NAME and NAME.log into /tmp/res/NAME.tgz (whole or not at all);
-#   cells JOBS P: run a file of deploy_sweep.py argument lines, P at a time (one
+#   cells JOBS P: run a file of deploy_sweep.py argument lines (NAME ARGS..., each line
+#     as bash quotes it: printf '%q ' per argument), P at a time (one
 #     1,000-episode cell per line took 4-5 minutes of one CPU core on an H200 host,
 #     14 at once beside a training run: onnxruntime on one thread, the simulator on the GPU), each "cell NAME DONE rc" in studies.log.
 #   the copy of the tree has no .git: the commit it was sent from is read from SOURCE_COMMIT
-#     (written here before a run, `git rev-parse HEAD > SOURCE_COMMIT`, carried) into
+#     (written here before a run, carried: `echo $(git rev-parse HEAD)$(git status
+#     --porcelain --untracked-files=no | grep -q . && echo +dirty) > SOURCE_COMMIT`) into
 #     MARA_MJX_GIT_COMMIT, which every artefact's git_commit then records.
 export XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUFFERED=1 JAX_DEFAULT_MATMUL_PRECISION=highest JAX_COMPILATION_CACHE_DIR=/tmp/jaxcache JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0
 mkdir -p /tmp/res
@@ -49,6 +51,6 @@ cell() {  # NAME ARGS...: one deploy_sweep.py run into /tmp/res/cells/NAME
 cells() {
   mkdir -p /tmp/res/cells
   export -f cell
-  xargs -P "$2" -L 1 bash -c 'cell "$@"' _ < "$1"
+  xargs -d '\n' -P "$2" -n 1 bash -c 'eval "cell $1"' _ < "$1" || echo "cells $1 FAILED $?" >> /tmp/res/studies.log
 }
 if [ -f SOURCE_COMMIT ]; then export MARA_MJX_GIT_COMMIT=$(cat SOURCE_COMMIT); fi

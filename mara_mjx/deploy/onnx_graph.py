@@ -60,9 +60,13 @@ import numpy as np
 OPSET = 17
 TOLERANCE = 1e-4
 """rad: onnxruntime against the JAX step on the check observations."""
-ROUNDING_DRAWS = 16
+ROUNDING_DRAWS = 32
 """A planned policy's check: how many times each check observation is re-rounded to
 measure the jitted step's own sensitivity (`own_spread`)."""
+SPREAD_MARGIN = 2.0
+"""A planned policy's check: the graph, one more float32 evaluation, may differ from the
+jit by this many times the largest of the draws' moves (a maximum over 32 draws samples
+the range of a chaotic observation's outputs, it does not bound it)."""
 MIN_SINGULAR = 0.05
 """The check observations' arm poses: sigma_min of the TCP Jacobian at least this."""
 INSTALL = "pip install 'mara_mjx[export]' (or pip install jax2onnx==0.17.1)"
@@ -138,13 +142,14 @@ def build_model(
         # rounded differently by an ulp, ~2e-6 on the rest (benchmarks/NOTES.md sections
         # 42 and 44). No float32 evaluation, the graph's included, can be held closer there
         # than that. So: 95% of the observations within the tolerance x (1 + K / 4), and
-        # every one within that bound plus the jitted step's own spread
+        # every one within that bound plus SPREAD_MARGIN x the jitted step's own spread
         bound = tolerance * (1 + steps / 4)
         spread = own_spread(step, obs, want)
-        diff = self_check(model, obs, want, batch, bound + spread, quantile=(0.95, bound))
+        allowed = bound + SPREAD_MARGIN * spread
+        diff = self_check(model, obs, want, batch, allowed, quantile=(0.95, bound))
         reference = (
-            f"jit; plan_steps: 95% within {bound:.0e}, each within it plus the jit's "
-            f"own spread under an ulp of input rounding (largest {spread.max():.1e})"
+            f"jit; plan_steps: 95% within {bound:.0e}, each within it plus {SPREAD_MARGIN:g}x "
+            f"the jit's own spread under input rounding (largest {spread.max():.1e})"
         )
     else:
         diff, reference = _check_against_jit_or_eager(model, obs, want, batch, tolerance, step)
@@ -161,10 +166,11 @@ def own_spread(
     draws: int = ROUNDING_DRAWS,
     seed: int = 0,
 ) -> np.ndarray:
-    """(M,) rad: per observation of `obs`, the most the jitted `step`'s outputs move from
-    `want` (its outputs on `obs`) when every input is perturbed by up to two float32 ulps
-    (relative 2**-22), over `draws` draws: how closely any float32 evaluation of the
-    step can agree with it there."""
+    """(M,) rad: per observation of `obs`, the most the jitted `step`'s outputs moved from
+    `want` (its outputs on `obs`) when every input was perturbed by a relative 2**-22 (2-4
+    float32 ulps), over `draws` draws: a sample of how far two float32 evaluations of the
+    step can disagree there (~2e-6 rad on a smooth observation; up to the size of the
+    output's range on a chaotic one)."""
     import jax
 
     jitted, rng, spread = jax.jit(step), np.random.default_rng(seed), np.zeros(len(obs))
@@ -254,12 +260,15 @@ def self_check(
     diff = float(rows.max())
     share_ok = quantile is None or np.mean(rows <= quantile[1]) >= quantile[0]
     allowed = np.broadcast_to(np.asarray(tolerance, np.float64), rows.shape)
-    if not (np.all(rows <= allowed) and share_ok):
+    over = ~(rows <= allowed)  # (a NaN row is over)
+    if over.any() or not share_ok:
         worst = int(np.argmax(rows - allowed))
         raise OnnxGraphError(
             f"the traced graph differs from the JAX policy by {diff:.2e} rad on "
-            f"{len(obs)} check observations (by {rows[worst]:.2e} where {allowed[worst]:.0e} "
-            "is allowed"
+            f"{len(obs)} check observations ("
+            + (f"{int(over.sum())} beyond their tolerance, the worst by {rows[worst]:.2e} "
+               f"where {allowed[worst]:.2e} is allowed" if over.any() else
+               "each within its tolerance")
             + ("" if quantile is None else
                f"; {100 * np.mean(rows <= quantile[1]):.0f}% within {quantile[1]:.0e}, "
                f"{100 * quantile[0]:.0f}% needed")
