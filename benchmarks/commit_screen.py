@@ -35,13 +35,6 @@ from mara_mjx.runtime import files, outputs
 OUTPUTS = ("commit_screen.json", "commit_screen.md", "commit_screen.png")
 
 
-def ours(out: Path) -> bool:
-    data = outputs.read_json(out / OUTPUTS[0])
-    return isinstance(data, dict) and str(data.get("command", "")).startswith(
-        "python benchmarks/commit_screen.py"
-    )
-
-
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -57,14 +50,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--overwrite", action="store_true")
     args = parser.parse_args(argv)
     try:
-        outputs.check_output_folder(args.out, OUTPUTS, "--out", lambda: ours(args.out),
-                                    args.overwrite)  # fmt: skip
+        outputs.check_output_folder(
+            args.out,
+            OUTPUTS,
+            "--out",
+            lambda: outputs.written_by(args.out / OUTPUTS[0], "python benchmarks/commit_screen.py"),
+            args.overwrite,
+        )
     except UserError as e:
         parser.error(str(e))
 
     import jax
 
-    import mara_mjx
     from mara_mjx.bench.robustness_judge import held_out_params, pose_summary
     from mara_mjx.ppo import checkpoint as ckpt
     from mara_mjx.ppo.config import EvalConfig
@@ -86,6 +83,7 @@ def main(argv: list[str] | None = None) -> int:
         params, poses = held_out_params(env, config)
         programs[(name, commit)] = (make_evaluate(env, config, params), poses)
     this = "python benchmarks/commit_screen.py " + " ".join(argv)
+    provenance = runs.provenance()  # the versions and the git commit, as every run records
     rows = []
     for folder, (arrays, m) in zip(args.seeds, loaded, strict=True):
         policy = policy_from_checkpoint(arrays, m)
@@ -104,15 +102,14 @@ def main(argv: list[str] | None = None) -> int:
             }
             print(f"{folder.name} {key}: {row['judged'][key]}", flush=True)
         rows.append(row)
-        write(args, this, rows, mara_mjx.__version__)
+        write(args, this, rows, provenance)
     figure(args.out / OUTPUTS[2], rows)
     print((args.out / OUTPUTS[1]).read_text())
     return 0
 
 
-def write(args, this: str, rows: list[dict], version: str) -> None:
-    import jax
-
+def write(args, this: str, rows: list[dict], provenance: dict) -> None:
+    versions = provenance["versions"]
     keys = list(rows[0]["judged"])
     head = ["seed", *(f"{k}: 5 mm 2 deg / 1 mm 1 deg / colliding" for k in keys)]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -124,14 +121,16 @@ def write(args, this: str, rows: list[dict], version: str) -> None:
                          f" / {100 * j['colliding']:.1f}%")  # fmt: skip
         lines.append("| " + " | ".join(cells) + " |")
     text = (f"# The plan on the servos, re-asked or held, against the train driver\n\n`{this}` "
-            f"({platform.platform()}, CPU; jax {jax.__version__}, mara_mjx {version}). "
+            f"({platform.platform()}, CPU; jax {versions['jax']}, "
+            f"mara_mjx {versions['mara_mjx']}). "
             f"{args.poses} held-out poses (evaluation seed {args.seed}); the real driver with "
             "randomised physics; every episode to the horizon.\n\n"
             + "\n".join(lines) + "\n")  # fmt: skip
     files.write_atomic(args.out / OUTPUTS[1], text)
     record = {
-        "command": this, "platform": platform.platform(), "jax": jax.__version__,
-        "mara_mjx": version, "poses": args.poses, "seed": args.seed, "rows": rows,
+        "command": this, "platform": platform.platform(), "jax": versions["jax"],
+        "mara_mjx": versions["mara_mjx"], **provenance, "poses": args.poses, "seed": args.seed,
+        "rows": rows,
     }  # fmt: skip
     files.write_atomic(args.out / OUTPUTS[0], json.dumps(record, indent=1))
 

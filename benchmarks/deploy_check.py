@@ -67,14 +67,6 @@ def check_cell(check: dict) -> str:
     return f"{check['max_abs_diff']:.1e} {check.get('reference', 'jit')}"
 
 
-def ours(out: Path) -> bool:
-    """True if `out`'s deploy_check.json is an earlier check's (its files may be replaced)."""
-    data = outputs.read_json(out / OUTPUTS[0])
-    return isinstance(data, dict) and str(data.get("command", "")).startswith(
-        "python benchmarks/deploy_check.py"
-    )
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("seeds", nargs="+", type=Path, help="run folders (one per seed)")
@@ -88,8 +80,13 @@ def main() -> None:
     cut = argv.index("--") if "--" in argv else len(argv)
     args, extra = parser.parse_args(argv[:cut]), argv[cut + 1 :]  # after --: evaluate's
     try:
-        outputs.check_output_folder(args.out, OUTPUTS, "--out", lambda: ours(args.out),
-                                    args.overwrite)  # fmt: skip
+        outputs.check_output_folder(
+            args.out,
+            OUTPUTS,
+            "--out",
+            lambda: outputs.written_by(args.out / OUTPUTS[0], "python benchmarks/deploy_check.py"),
+            args.overwrite,
+        )
     except UserError as e:
         parser.error(str(e))
     py = [sys.executable, "-m"]

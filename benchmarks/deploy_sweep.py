@@ -224,8 +224,13 @@ def main(argv: list[str] | None = None) -> int:
     args.extra = extra
     this = "python benchmarks/deploy_sweep.py " + shlex.join(argv)
     try:
-        outputs.check_output_folder(args.out, OUTPUTS, "--out", lambda: ours(args.out),
-                                    args.overwrite)  # fmt: skip
+        outputs.check_output_folder(
+            args.out,
+            OUTPUTS,
+            "--out",
+            lambda: outputs.written_by(args.out / OUTPUTS[0], "python benchmarks/deploy_sweep.py"),
+            args.overwrite,
+        )
     except UserError as e:
         parser.error(str(e))
     if args.merge:
@@ -249,14 +254,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 OUTPUTS = ("deploy_sweep.json", "deploy_sweep.md", "deploy_sweep.png")
-
-
-def ours(out: Path) -> bool:
-    """True if `out`'s deploy_sweep.json is an earlier sweep's (its files may be replaced)."""
-    data = outputs.read_json(out / OUTPUTS[0])
-    return isinstance(data, dict) and str(data.get("command", "")).startswith(
-        "python benchmarks/deploy_sweep.py"
-    )
 
 
 def record(args, this: str, rows: list[dict], versions, complete: bool, parts=None) -> str:

@@ -57,7 +57,7 @@ picks() {  # NAME OFFSET RECIPE: 8 picks of 4 among 32 seeds from OFFSET, export
   run=$(ls -d /tmp/work/$n/runs/*/ | head -1)
   p=$(picks_of $n)
   [ -n "$p" ] || { echo "picks $n: the study judged no seed (see $n.log)" >> /tmp/res/studies.log; return 1; }
-  tar czf /tmp/res/ck_$n.tgz.part -C "$run" $(cd "$run" && for s in $p; do echo seed_$s/config.json seed_$s/checkpoints/$(ls seed_$s/checkpoints | sort | tail -1); done) && mv /tmp/res/ck_$n.tgz.part /tmp/res/ck_$n.tgz
+  keep "$run" /tmp/res/ck_$n.tgz $p
   export_all "$run" /tmp/res/onnx_$n $p
   wait  # (A: the CPU cells started beside the training)
   loops $n "MARACollisionOrientRandomTarget, $recipe, pick of 4, exported .onnx" 14

@@ -2,8 +2,8 @@
 # What the GPU drivers share (source it from the repository root):
 #   the environment of every run: deterministic precision, no preallocation (several studies
 #   share one GPU), a compilation cache in /tmp; /tmp/res, where outputs are collected;
-#   keep RUN TGZ: each seed's config.json and newest checkpoint of a --seeds run, in TGZ
-#     (written whole or not at all);
+#   keep RUN TGZ [SEEDS...]: each seed's (or the SEEDS') config.json and newest checkpoint
+#     of a --seeds run, in TGZ (written whole or not at all);
 #   study NAME OFFSET EVAL_SEED RECIPE [FLAGS...]: one MARACollision robustness study of 16
 #     seeds, judged on the real driver without the rate limit, into /tmp/res/NAME, its
 #     "NAME DONE rc" line appended to /tmp/res/studies.log.
@@ -21,7 +21,10 @@
 export XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUFFERED=1 JAX_DEFAULT_MATMUL_PRECISION=highest JAX_COMPILATION_CACHE_DIR=/tmp/jaxcache JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0
 mkdir -p /tmp/res
 keep() {
-  tar czf "$2.part" -C "$1" $(cd "$1" && for s in seed_*; do echo $s/config.json $s/checkpoints/$(ls $s/checkpoints | sort | tail -1); done) && mv "$2.part" "$2"
+  local run=$1 tgz=$2
+  shift 2
+  local seeds=$(cd "$run" && if [ $# -gt 0 ]; then printf 'seed_%s ' "$@"; else echo seed_*; fi)
+  tar czf "$tgz.part" -C "$run" $(cd "$run" && for s in $seeds; do echo $s/config.json $s/checkpoints/$(ls $s/checkpoints | sort | tail -1); done) && mv "$tgz.part" "$tgz"
 }
 study() {
   local name=$1 offset=$2 eval_seed=$3 recipe=$4

@@ -60,6 +60,13 @@ def read_json(path: str | os.PathLike) -> Any:
         return None
 
 
+def written_by(record: str | os.PathLike, command: str) -> bool:
+    """True if the JSON file `record` holds a "command" that starts with `command`: a
+    script's own earlier output (its `ours` for check_output_folder), which it may replace."""
+    data = read_json(record)
+    return isinstance(data, dict) and str(data.get("command", "")).startswith(command)
+
+
 def is_run_folder(folder: str | os.PathLike) -> bool:
     """True if `folder` holds the config.json of a mara_mjx training run."""
     config = read_json(Path(folder) / "config.json")
