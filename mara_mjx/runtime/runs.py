@@ -361,7 +361,7 @@ def git_commit() -> str | None:
     """HEAD of the source checkout this package runs from ('+dirty' if modified); else
     $MARA_MJX_GIT_COMMIT if set (a copy of the tree without its .git, e.g. a GPU
     machine's); else None (an installed package: its folder is no checkout of mara_mjx)."""
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]  # mara_mjx/runtime/runs.py -> the tree
     if not (root / "pyproject.toml").is_file() or not (root / ".git").exists():
         return os.environ.get(GIT_COMMIT_ENV) or None
     try:
