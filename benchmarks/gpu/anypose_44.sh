@@ -17,6 +17,11 @@
 #     `picks mcort_sel2 1264` (8 more picks: 16 in all) and `picks plain 1296 "cli
 #     --train_clearance_penalty 1 --plan_steps 16 --commit_rad 0.01"` (the plain recipe:
 #     no randomised physics in training, judged with it). One per machine (~25 minutes).
+#   bash anypose_44.sh gpus   the same two on a machine of several GPUs, split: on GPU i
+#     (CUDA_VISIBLE_DEVICES, the study, its exports' checks and its loops) the i-th of
+#     mcort_sel2a 1264, mcort_sel2b 1280 (the recipe's 8 more picks), plain_a 1296, plain_b
+#     1312 (the plain recipe's 8), each 4 picks of 4 among 16 seeds (about 12 minutes of
+#     training on one H200); with fewer GPUs, the first ones only (section 45).
 # A needs section 42's files carried as sweep_in/onnx42.tgz (carry "sweep_in": it is
 # excluded from git, 3.4 MB). On the run of section 44 the held42 cells were stopped by
 # hand after 4 (device time); only the sweep and the picks' cells completed.
@@ -51,9 +56,9 @@ loops() {  # NAME LABEL P: every file of /tmp/res/onnx_NAME at both speeds, rand
   cells /tmp/res/jobs_loop_$1 $3
   tar czf /tmp/res/cells_loop_$1.tgz.part -C /tmp/res/cells $(cd /tmp/res/cells && ls -d loop_$1_*) && mv /tmp/res/cells_loop_$1.tgz.part /tmp/res/cells_loop_$1.tgz
 }
-picks() {  # NAME OFFSET RECIPE: 8 picks of 4 among 32 seeds from OFFSET, exported, in the loop
-  local n=$1 offset=$2 recipe=$3 run p
-  mcort $n "$recipe" --seeds 8 --seed_offset $offset --select 4
+picks() {  # NAME OFFSET RECIPE [N]: N (8) picks of 4 among 4N seeds from OFFSET, exported, in the loop
+  local n=$1 offset=$2 recipe=$3 k=${4:-8} run p
+  mcort $n "$recipe" --seeds $k --seed_offset $offset --select 4
   run=$(ls -d /tmp/work/$n/runs/*/ | head -1)
   p=$(picks_of $n)
   [ -n "$p" ] || { echo "picks $n: the study judged no seed (see $n.log)" >> /tmp/res/studies.log; return 1; }
@@ -85,6 +90,19 @@ case $1 in
     picks mcort_sel 1232 "$R"
     ;;
   picks) picks "$2" "$3" "${4:-$R}" ;;
-  *) echo "usage: anypose_44.sh A | picks NAME OFFSET RECIPE" >&2; exit 2 ;;
+  gpus)  # one study of 4 picks (16 seeds) per GPU, in this order, as many as there are GPUs (<= 4)
+    P="cli --train_clearance_penalty 1 --plan_steps 16 --commit_rad 0.01"
+    n=$(nvidia-smi -L | wc -l)
+    i=0
+    for spec in "mcort_sel2a 1264 R" "mcort_sel2b 1280 R" "plain_a 1296 P" "plain_b 1312 P"; do
+      [ $i -ge $n ] && break
+      set -- $spec
+      r=$R; [ $3 = P ] && r=$P
+      (export CUDA_VISIBLE_DEVICES=$i; picks $1 $2 "$r" 4) &
+      i=$((i + 1))
+    done
+    wait
+    ;;
+  *) echo "usage: anypose_44.sh A | picks NAME OFFSET RECIPE | gpus" >&2; exit 2 ;;
 esac
 echo DRIVER_DONE >> /tmp/res/studies.log
