@@ -184,7 +184,9 @@ def merge(args: argparse.Namespace, this: str) -> int:
             raise SystemExit(f"--merge: {folder} holds {what}")
         seen.add(path)
         rows += data["rows"]
-        parts.append({k: data.get(k) for k in ("command", "platform", "versions")})
+        # a merged sweep brings its own parts (merged again, the list stays flat)
+        own = {k: data.get(k) for k in ("command", "platform", "versions")}
+        parts += data.get("parts") or [own]
     tasks = sorted({r["env_name"] for r in rows})
     if len(tasks) > 1:
         raise SystemExit(f"--merge: the sweeps are of several tasks ({', '.join(tasks)})")

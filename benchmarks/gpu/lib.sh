@@ -14,7 +14,8 @@
 #     as bash quotes it: printf '%q ' per argument), P at a time (one
 #     1,000-episode cell per line took 4-5 minutes of one CPU core on an H200 host,
 #     14 at once beside a training run: onnxruntime on one thread, the simulator on the GPU), each "cell NAME DONE rc" in studies.log.
-#   the copy of the tree has no .git: the commit it was sent from is read from SOURCE_COMMIT
+#   the copy of the tree may carry a stale .git (section 45: the session's first HEAD), so the
+#     commit it was sent from is read from SOURCE_COMMIT
 #     (written here before a run, carried: `echo $(git rev-parse HEAD)$(git status
 #     --porcelain --untracked-files=no | grep -q . && echo +dirty) > SOURCE_COMMIT`) into
 #     MARA_MJX_GIT_COMMIT, which every artefact's git_commit then records.

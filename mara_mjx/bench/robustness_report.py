@@ -130,9 +130,9 @@ def notes(records: list[dict[str, Any]]) -> list[str]:
         if r["kind"] == "error":
             lines.append(f"- {r['task']} / {r['recipe']}: the train command failed: "
                          f"{r['error'].splitlines()[0]}")  # fmt: skip
-    commands = {(r["task"], r["recipe"]): r["command"] for r in records}
+    commands = dict.fromkeys(r["command"] for r in records if "command" in r)  # (a merge's parts)
     lines += ["", "Train commands:", ""]
-    lines += [f"- `{c}`" for c in commands.values()]
+    lines += [f"- `{c}`" for c in commands]
     return lines
 
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from mara_mjx.cli.common import UserError, configure_jax
 from mara_mjx.config import ConfigMixin, check_int
-from mara_mjx.runtime import files, outputs
+from mara_mjx.runtime import files, outputs, runs
 from mara_mjx.viz.plots import finish_figure
 
 TASKS = ("MARA", "MARAOrient", "MARACollision", "MARACollisionOrient")
@@ -343,6 +343,7 @@ def main(argv: Sequence[str] | None = None, description: str = "") -> None:
         "command": "python -m mara_mjx.benchmark "
         + " ".join(sys.argv[1:] if argv is None else argv),
         "versions": versions(),
+        "git_commit": runs.git_commit(),
         "device": device_info(),
         "settings": settings,
         "config": config.to_dict(),

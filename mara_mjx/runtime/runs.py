@@ -353,17 +353,21 @@ def versions() -> dict[str, Any]:
 
 
 GIT_COMMIT_ENV = "MARA_MJX_GIT_COMMIT"
-"""Names the commit of a copy of the source tree without its .git (e.g. the one a GPU
-machine runs: benchmarks/gpu/lib.sh reads it from the tree's SOURCE_COMMIT file)."""
+"""Names the commit of a copy of the source tree (e.g. the one a GPU machine runs:
+benchmarks/gpu/lib.sh reads it from the tree's SOURCE_COMMIT file). It wins over the
+copy's own .git, which may be older than the tree sent with it (measured: a device copy
+carried the session's first HEAD, so every run there read as that commit, +dirty)."""
 
 
 def git_commit() -> str | None:
-    """HEAD of the source checkout this package runs from ('+dirty' if modified); else
-    $MARA_MJX_GIT_COMMIT if set (a copy of the tree without its .git, e.g. a GPU
-    machine's); else None (an installed package: its folder is no checkout of mara_mjx)."""
+    """$MARA_MJX_GIT_COMMIT if set (a copy of the tree, e.g. a GPU machine's); else HEAD
+    of the source checkout this package runs from ('+dirty' if modified); else None (an
+    installed package: its folder is no checkout of mara_mjx)."""
+    if os.environ.get(GIT_COMMIT_ENV):
+        return os.environ[GIT_COMMIT_ENV]
     root = Path(__file__).resolve().parents[2]  # mara_mjx/runtime/runs.py -> the tree
     if not (root / "pyproject.toml").is_file() or not (root / ".git").exists():
-        return os.environ.get(GIT_COMMIT_ENV) or None
+        return None
     try:
         commit = subprocess.run(
             ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=5
