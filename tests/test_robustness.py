@@ -320,3 +320,22 @@ def test_pick_cli_names_bad_input(tmp_path, flags, message):
     with pytest.raises(UserError, match=re.escape(message)):
         pick.main([str(tmp_path), *flags])
     assert not list(tmp_path.iterdir())  # nothing written
+
+
+def test_pick_warns_when_even_the_chosen_seed_misses_draws():
+    """`pick`'s warning: none when the chosen seed ends every draw within the bar; when it
+    misses some (the any-pose pick that missed 2 of 200 held 98.4% on other draws), the
+    warning names the misses per speed, and the markdown carries it under the choice."""
+    from mara_mjx.cli.pick import markdown, warning
+
+    clean = {"0.3": {"within_5": 1.0, "colliding": 0.005, "error_mm": 0.3},
+             "0.5": {"within_5": 1.0, "colliding": 0.0, "error_mm": 0.3}}  # fmt: skip
+    assert warning(clean, 200, "5 mm") is None  # a collision alone is no miss
+    missed = {**clean, "0.5": {"within_5": 0.99, "colliding": 0.0, "error_mm": 2.1}}
+    text = warning(missed, 200, "5 mm and 2 deg")
+    assert "outside 5 mm and 2 deg in 2 of 200 at 0.5 rad/s" in text and "0.3 rad/s" not in text
+    report = {"env_name": "T", "run": "r", "orientation": True, "chosen": 7, "chosen_folder": "f",
+              "settings": {"draws": 200, "eval_seed": 1}, "warning": text,
+              "ranking": [{"seed": 7, "velocities": missed}]}  # fmt: skip
+    assert markdown(report).splitlines()[-2:] == ["chosen: seed 7, f", f"warning: {text}"]
+    assert "warning" not in markdown({**report, "warning": None})

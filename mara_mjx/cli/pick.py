@@ -24,6 +24,11 @@ in five per seed for the recipe above; which seeds fail changes with every recip
 seeds in one program and keeping the best is the measured recipe (the robustness study's
 `--select 4`, the same judgement and ranking: `mara_mjx.bench.robustness`).
 
+When even the chosen seed ends outside the bar in some of the draws, a warning under the
+ranking (and the JSON's "warning") says so: every seed then misses some, and 200 draws
+cannot tell 99% from 98% (measured: such a pick held 98.4% on 1,000 other draws, every
+pick that missed none >= 99.5%). Train more seeds and pick among them.
+
 The chosen seed was picked on these draws: judge it again on others before it goes near
 an arm (`python -m mara_mjx.evaluate RUN/seed_<s> --driver real --randomize --seed 2`).
 Ctrl-C (or SIGTERM) stops it with one line and exit status 130 (143), writing nothing.
@@ -189,8 +194,12 @@ def _main(args: argparse.Namespace) -> int:
         **runs.provenance(),
         "chosen": ranking[0]["seed"],
         "chosen_folder": ranking[0]["folder"],
+        "warning": warning(
+            ranking[0]["velocities"], args.draws,
+            "5 mm and 2 deg" if orientation else "5 mm",
+        ),
         "ranking": ranking,
-    }
+    }  # fmt: skip
     text = markdown(report)
     runs.write_json(out, report)
     files.write_atomic(md, text + "\n")
@@ -221,18 +230,27 @@ def markdown(report: dict[str, Any]) -> str:
             cells += [f"{100 * n['within_5']:.1f}%", f"{100 * n['colliding']:.1f}%",
                       f"{n['error_mm']:.2f}"]  # fmt: skip
         lines.append("| " + " | ".join(cells) + " |")
-    best = report["ranking"][0]["velocities"]
-    worst = min(n["within_5"] for n in best.values())
-    verdict = (
-        ""
-        if worst >= 0.99
-        else (
-            f" (warning: it ends {bar} in only {100 * worst:.1f}% of the "
-            "episodes at its worst speed; train more seeds)"
-        )
-    )
-    lines += ["", f"chosen: seed {report['chosen']}, {report['chosen_folder']}{verdict}"]
+    lines += ["", f"chosen: seed {report['chosen']}, {report['chosen_folder']}"]
+    if report.get("warning"):
+        lines.append(f"warning: {report['warning']}")
     return "\n".join(lines)
+
+
+def warning(best: dict[str, dict[str, float]], draws: int, bar: str) -> str | None:
+    """Why the chosen seed (its selection_numbers per velocity) may not transfer, or None:
+    it missed the bar in some of its draws. Measured (benchmarks/NOTES.md, sections 41
+    and 45): every pick of the two sim-to-real recipes that missed none of its 200 draws
+    per speed held >= 99.5% on 1,000 other draws, and the one that missed 2 of 200 held
+    98.4%; 200 draws cannot tell a seed at 99% from one at 98%."""
+    misses = {v: round((1.0 - n["within_5"]) * draws) for v, n in best.items()}
+    if not any(misses.values()):
+        return None
+    where = ", ".join(f"{k} of {draws} at {v} rad/s" for v, k in misses.items() if k)
+    return (
+        f"the chosen seed ends outside {bar} in {where}: it may hold less than 99% on the "
+        "arm. Every seed ranked misses some; train more seeds (another --seed) and pick "
+        "among them, or judge it on more draws (--draws 1000)"
+    )
 
 
 if __name__ == "__main__":
