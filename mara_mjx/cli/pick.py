@@ -26,8 +26,9 @@ seeds in one program and keeping the best is the measured recipe (the robustness
 
 When even the chosen seed ends outside the bar in some of the draws, a warning under the
 ranking (and the JSON's "warning") says so: every seed then misses some, and 200 draws
-cannot tell 99% from 98% (measured: such a pick held 98.4% on 1,000 other draws, every
-pick that missed none >= 99.5%). Train more seeds and pick among them.
+cannot tell 99% from 98% (measured on the any-pose recipe: picks that missed 1 and 2 of 200
+held 99.0% and 98.4% on 1,000 other draws, every pick that missed none >= 99.5%). Train
+more seeds and pick among them.
 
 The chosen seed was picked on these draws: judge it again on others before it goes near
 an arm (`python -m mara_mjx.evaluate RUN/seed_<s> --driver real --randomize --seed 2`).
@@ -238,10 +239,10 @@ def markdown(report: dict[str, Any]) -> str:
 
 def warning(best: dict[str, dict[str, float]], draws: int, bar: str) -> str | None:
     """Why the chosen seed (its selection_numbers per velocity) may not transfer, or None:
-    it missed the bar in some of its draws. Measured (benchmarks/NOTES.md, sections 41
-    and 45): every pick of the two sim-to-real recipes that missed none of its 200 draws
-    per speed held >= 99.5% on 1,000 other draws, and the one that missed 2 of 200 held
-    98.4%; 200 draws cannot tell a seed at 99% from one at 98%."""
+    it missed the bar in some of its draws. Measured (benchmarks/NOTES.md, section 45):
+    each of the 22 any-pose picks that missed none of its 200 draws per speed held >= 99.5%
+    on 1,000 other draws; the two that missed 1 and 2 of 200 held 99.0% and 98.4%: 200
+    draws cannot tell a seed at 99% from one at 98%."""
     misses = {v: round((1.0 - n["within_5"]) * draws) for v, n in best.items()}
     if not any(misses.values()):
         return None
