@@ -221,6 +221,22 @@ def test_select_trains_k_seeds_per_judged_seed_and_keeps_the_one_that_transfers(
         r["within_5mm_2deg"] = 1.0
     assert select_seeds([1, 2], [a, b], 2)[0] == [1]
 
+    # on a random-target task the train driver's poses count too: servo ties (100%, no
+    # collision) broken by the fraction within 1 mm, then by its collisions
+    def train(within_1, colliding=0.0):
+        return {"targets": {"within_1": within_1, "episodes_colliding": colliding,
+                            "position_mm": {"mean": [0.2] * 3}}}  # fmt: skip
+
+    tied = [
+        {**row(1.0, 1.0, 0.3), **train(0.998)},
+        {**row(1.0, 1.0, 0.9), **train(1.0)},
+        {**row(1.0, 1.0, 0.1), **train(1.0, 0.002)},
+        {**row(0.99, 1.0, 0.1), **train(1.0)},
+    ]
+    picks, records = select_seeds([5, 6, 7, 8], tied, 4)
+    assert picks == [1] and records[0]["train"][5]["within_1"] == 0.998
+    assert "train" not in select_seeds([1, 2], [a, b], 2)[1][0]  # servos alone: no record
+
 
 def load_script(name: str):
     """A benchmarks/ script as a module."""
@@ -333,9 +349,62 @@ def test_pick_warns_when_even_the_chosen_seed_misses_draws():
     assert warning(clean, 200, "5 mm") is None  # a collision alone is no miss
     missed = {**clean, "0.5": {"within_5": 0.99, "colliding": 0.0, "error_mm": 2.1}}
     text = warning(missed, 200, "5 mm and 2 deg")
-    assert "outside 5 mm and 2 deg in 2 of 200 at 0.5 rad/s" in text and "0.3 rad/s" not in text
+    assert "misses 2 of 200 draws at 0.5 rad/s outside 5 mm and 2 deg:" in text
+    assert "0.3 rad/s" not in text
+    exact = {"within_1": 1.0, "colliding": 0.0, "error_mm": 0.1}
+    assert warning(clean, 200, "5 mm", exact, 1000) is None
+    inexact = warning(clean, 200, "5 mm", {**exact, "within_1": 0.997}, 1000)
+    assert "misses 3 of 1000 train-driver poses outside 1 mm:" in inexact
     report = {"env_name": "T", "run": "r", "orientation": True, "chosen": 7, "chosen_folder": "f",
               "settings": {"draws": 200, "eval_seed": 1}, "warning": text,
               "ranking": [{"seed": 7, "velocities": missed}]}  # fmt: skip
     assert markdown(report).splitlines()[-2:] == ["chosen: seed 7, f", f"warning: {text}"]
     assert "warning" not in markdown({**report, "warning": None})
+
+
+@pytest.mark.parametrize("task, poses", [("MARAOrientRandomTarget", 8), ("MARA", 0)])
+def test_pick_ranks_random_target_seeds_on_the_train_driver_too(tmp_path, monkeypatch, task, poses):
+    """`pick` on a random-target run judges every seed on --poses train-driver poses drawn
+    from --seed as well as on the servos, and ranks by both (a seed exact on the servos'
+    few draws but not on the poses loses to one exact on both); on a fixed-target run it
+    asks for no poses. (The judgements are faked here: the real ones run in
+    test_seeds_cli's pick test and, on a random-target run, NOTES section 45.)"""
+    import json
+
+    from mara_mjx.bench import robustness_judge
+    from mara_mjx.cli import pick
+    from mara_mjx.envs import make
+    from mara_mjx.ppo import seed_eval
+
+    env = make(task)
+    meta = {"env_name": task, "env_config": {}, "observation_size": env.observation_size}
+    (tmp_path / "seeds.json").write_text(json.dumps({"env_name": task, "seeds": [3, 4]}))
+    asked = []
+
+    def real(meta, policy, n, settings, orientation):
+        asked.append(("real", settings.eval_seed, settings.draws))
+        summary = {"within_5": 1.0, "within_5mm_2deg": 1.0, "episodes_colliding": 0.0,
+                   "position_mm": {"mean": [0.3] * 3}}  # fmt: skip
+        return [{"real": {"0.3": dict(summary)}} for _ in range(n)]
+
+    def targets(env, policy, n, settings, orientation):
+        asked.append(("train", settings.eval_seed, settings.poses))
+        mean = {"mean": [0.2] * 3}
+        return [{"targets": {"within_1": w, "episodes_colliding": 0.0, "position_mm": mean}}
+                for w in (0.875, 1.0)]  # fmt: skip
+
+    monkeypatch.setattr(robustness_judge, "load_seeds", lambda top, s: ([None, None], meta, []))
+    monkeypatch.setattr(robustness_judge, "judge_real", real)
+    monkeypatch.setattr(robustness_judge, "judge_targets", targets)
+    monkeypatch.setattr(seed_eval, "stack_policies", lambda p: p)
+    argv = [str(tmp_path), "--velocities", "0.3", "--draws", "4", "--seed", "5", "--poses", "8"]
+    assert pick.main(argv) == 0
+    report = json.loads((tmp_path / pick.REPORT).read_text())
+    if poses:
+        assert asked == [("real", 5, 4), ("train", 5, 8)]
+        assert report["chosen"] == 4 and report["ranking"][1]["train"]["within_1"] == 0.875
+        assert report["warning"] is None  # the chosen seed missed nothing
+        assert "train driver: within 1 mm and 1 deg" in (tmp_path / "pick-real.md").read_text()
+    else:
+        assert asked == [("real", 5, 4)] and "train" not in report["ranking"][0]
+        assert report["settings"]["poses"] == 0

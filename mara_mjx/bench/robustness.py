@@ -46,10 +46,13 @@ dot per seed, failed seeds in red).
 `--select K` judges a recipe that trains K seeds and keeps the one that transfers: seeds x
 K seeds train in the one program, each seed is first run on the real driver with
 randomised physics (`--select_draws` draws per velocity, keys from `--select_seed`, not
-the judged ones), and of each group of K consecutive seeds only the best (the highest
-smallest fraction within 5 mm over the velocities, then the smallest largest fraction of
-episodes with a collision, then the lowest mean error) is judged as above; its record
-names the group and every candidate's selection numbers.
+the judged ones) and, on a random-target task, on `--poses` poses of the train driver
+drawn from `--select_seed` too (not the held-out ones judged), and of each group of K
+consecutive seeds only the best (`robustness_judge.selection_score`: the highest smallest
+fraction within 5 mm over the velocities and within 1 mm of the train driver's poses,
+then the smallest largest fraction of episodes with a collision, then the lowest mean
+error) is judged as above; its record names the group and every candidate's selection
+numbers.
 """
 
 from __future__ import annotations
@@ -352,7 +355,11 @@ def judge(config: RobustnessConfig, job: Job, timing: dict[str, Any]) -> list[di
         trial = dataclasses.replace(
             config, draws=config.select_draws, eval_seed=config.selection_seed, select_seed=-1
         )
-        tried = judge_real(meta, stack_policies(policies), len(seeds), trial, orientation)
+        stacked = stack_policies(policies)
+        tried = judge_real(meta, stacked, len(seeds), trial, orientation)
+        if is_random_target(env):  # and the train driver on the selection's own poses
+            on_train = judge_targets(env, stacked, len(seeds), trial, orientation)
+            tried = [{**a, **b} for a, b in zip(on_train, tried, strict=True)]
         picks, chosen = select_seeds(seeds, tried, config.select)
         seeds = [seeds[i] for i in picks]
         policies, milestones = [policies[i] for i in picks], [milestones[i] for i in picks]
