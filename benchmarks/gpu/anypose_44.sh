@@ -22,6 +22,10 @@
 #     mcort_sel2a 1264, mcort_sel2b 1280 (the recipe's 8 more picks), plain_a 1296, plain_b
 #     1312 (the plain recipe's 8), each 4 picks of 4 among 16 seeds (about 12 minutes of
 #     training on one H200); with fewer GPUs, the first ones only (section 45).
+#   bash anypose_44.sh gpus "NAME OFFSET R|P"...   the same for the studies given (R: the
+#     recipe, P: the plain one); for the selection with the train driver's poses (section
+#     45, built after that run): gpus "tsel_a 1328 R" "tsel_b 1344 R" "tsel_c 1360 R"
+#     "tsel_d 1376 R" (16 picks of 64 fresh seeds, one 4-GPU machine, about 22 minutes).
 # A needs section 42's files carried as sweep_in/onnx42.tgz (carry "sweep_in": it is
 # excluded from git, 3.4 MB). On the run of section 44 the held42 cells were stopped by
 # hand after 4 (device time); only the sweep and the picks' cells completed.
@@ -94,7 +98,9 @@ case $1 in
     P="cli --train_clearance_penalty 1 --plan_steps 16 --commit_rad 0.01"
     n=$(nvidia-smi -L | wc -l)
     i=0
-    for spec in "mcort_sel2a 1264 R" "mcort_sel2b 1280 R" "plain_a 1296 P" "plain_b 1312 P"; do
+    shift
+    [ $# -gt 0 ] || set -- "mcort_sel2a 1264 R" "mcort_sel2b 1280 R" "plain_a 1296 P" "plain_b 1312 P"
+    for spec in "$@"; do
       [ $i -ge $n ] && break
       set -- $spec
       r=$R; [ $3 = P ] && r=$P

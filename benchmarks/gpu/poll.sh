@@ -1,20 +1,35 @@
 #!/bin/bash
-# Wait up to $1 seconds for the running driver, sending each finished /tmp/res/*.tgz to
-# $OUT once (split into 16 MB parts; results before checkpoints: a call brings back about
-# 64 MB in all, and what does not fit is left out), and the logs every time; call it again
-# within the machine's idle window until studies.log says DRIVER_DONE.
+# Wait up to $1 seconds for the running driver, sending the /tmp/res/*.tgz finished since
+# the last call to $OUT once, as one tar per call (results before checkpoints; split into
+# 16 MB parts: a call brings back at most 8 files and about 64 MB, so what does not fit
+# waits for the next call), and the logs every time; call it again within the machine's
+# idle window until studies.log says DRIVER_DONE. (Section 45 lost a call's worth of
+# files to the 8-file limit when each .tgz went on its own.)
 end=$(( $(date +%s) + $1 ))
-while :; do
+send() {  # the finished .tgz not yet sent, up to about 48 MB, as one tar in parts
+  local new=() size=0 f s
   for f in $(ls /tmp/res/*.tgz 2>/dev/null | grep -v /ck_) $(ls /tmp/res/ck_*.tgz 2>/dev/null); do
-    [ -e "$f" ] || continue
-    b=$(basename "$f")
-    grep -qx "$b" /tmp/res/sent 2>/dev/null || { split -b 16m -d "$f" "$OUT/$b." && echo "$b" >> /tmp/res/sent; }
+    grep -qx "$(basename "$f")" /tmp/res/sent 2>/dev/null && continue
+    s=$(stat -c %s "$f")
+    [ ${#new[@]} -gt 0 ] && [ $((size + s)) -gt 50000000 ] && break
+    new+=("$(basename "$f")"); size=$((size + s))
   done
-  cp /tmp/res/cold.log /tmp/res/studies.log "$OUT/" 2>/dev/null
-  grep -q DRIVER_DONE /tmp/res/studies.log 2>/dev/null && break
-  [ "$(date +%s)" -ge "$end" ] && break
+  [ ${#new[@]} -gt 0 ] || return 0
+  local tar=/tmp/res/batch_$(date +%s).tar
+  tar cf "$tar" -C /tmp/res "${new[@]}" && split -b 16m -d "$tar" "$OUT/$(basename "$tar")." \
+    && printf '%s\n' "${new[@]}" >> /tmp/res/sent
+  rm -f "$tar"
+}
+while :; do
+  grep -q DRIVER_DONE /tmp/res/studies.log 2>/dev/null && done=1
+  [ "$(date +%s)" -ge "$end" ] && done=1
+  [ -n "$done" ] && break
   sleep 10
 done
+send
+cp /tmp/res/cold.log /tmp/res/studies.log "$OUT/" 2>/dev/null
 tail -n 3 /tmp/res/*.log 2>/dev/null | tail -n 30
 for p in $(ls /tmp/work/*/runs/*/seed_*/progress.csv 2>/dev/null | head -n 1); do echo "$p: $(tail -n 1 "$p" | cut -d, -f1-4)"; done
 nvidia-smi --query-gpu=name,utilization.gpu,memory.used --format=csv,noheader
+left=$(ls /tmp/res/*.tgz 2>/dev/null | xargs -n1 basename 2>/dev/null | grep -vxFf /tmp/res/sent 2>/dev/null | wc -l)
+echo "tgz not yet sent: $left"
