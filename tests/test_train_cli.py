@@ -580,18 +580,23 @@ def test_orient_task_default_trains_and_its_checkpoint_runs_without_the_training
 
 def test_a_source_copy_without_git_still_names_its_version_and_commit(monkeypatch, tmp_path):
     """A copy of the source tree on PYTHONPATH (a GPU machine's): no installed metadata and
-    no .git, yet an artefact records mara_mjx's version and, where the driver exports
-    MARA_MJX_GIT_COMMIT, the commit."""
+    no .git (or a stale one), yet an artefact records mara_mjx's version and, where the
+    driver exports MARA_MJX_GIT_COMMIT, that commit."""
     from importlib import metadata
 
     import mara_mjx
     from mara_mjx.runtime import runs
 
     root = Path(runs.__file__).resolve().parents[2]
+    monkeypatch.delenv(runs.GIT_COMMIT_ENV, raising=False)
     if (root / ".git").exists():  # this checkout (a clone, as CI's): its HEAD is recorded
         head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True,
                               text=True).stdout.strip()  # fmt: skip
         assert runs.git_commit().removesuffix("+dirty") == head
+        # ... unless the driver names the commit sent: a device copy's .git can be older
+        # than its tree (NOTES section 45: every run there read as the session's first HEAD)
+        monkeypatch.setenv(runs.GIT_COMMIT_ENV, "0123abc")
+        assert runs.git_commit() == "0123abc"
 
     real = metadata.version
 
