@@ -23,6 +23,7 @@ without a per-seed probe timeline give their training metric's time instead
 
 from __future__ import annotations
 
+import gzip
 import json
 import sys
 
@@ -61,7 +62,9 @@ def main(specs: list[str]) -> None:
     chosen, commands, rescored = {}, [], []
     for spec in specs:
         path, _, pick = spec.partition(":")
-        data = json.load(open(path))
+        opener = gzip.open if path.endswith(".gz") else open  # (the larger records are gzipped)
+        with opener(path, "rt") as f:
+            data = json.load(f)
         commands.append(f"    {data['command']}   # {data['device']}")
         if "results" not in data:  # orientation_params_eval.py: accuracy re-evaluated
             rescored.append((data["task"], path.rsplit("/", 1)[-1], data["per_seed"]))

@@ -6,10 +6,10 @@ P=results/paper_table O=results/orientation
 rows() { python3 paper_table.py "$@" | sed -n '/^|---/,/^$/p' | tail -n +2 | sed '/^$/d'; }
 header() { python3 paper_table.py "$@" | sed -n '/^| task/,/^|---/p'; }
 {
-python3 paper_table.py $P/paper_table28_MARA_seeds0-4.json $P/paper_table28_MARA_seeds5-9.json \
-    $P/paper_table28_MARA_seeds10-14.json $P/paper_table28_MARA_eval_cpu.json \
-    $P/paper_table28_MARACollision_seeds5-9.json $P/paper_table28_MARACollision_seeds10-14.json \
-    $P/paper_table28_MARAOrient.json $P/paper_table28_MARACollisionOrient.json
+python3 paper_table.py $P/paper_table28_MARA_seeds0-4.json.gz $P/paper_table28_MARA_seeds5-9.json.gz \
+    $P/paper_table28_MARA_seeds10-14.json.gz $P/paper_table28_MARA_eval_cpu.json \
+    $P/paper_table28_MARACollision_seeds5-9.json.gz $P/paper_table28_MARACollision_seeds10-14.json.gz \
+    $P/paper_table28_MARAOrient.json.gz $P/paper_table28_MARACollisionOrient.json.gz
 cat <<'TXT'
 
 Session 28's code (`benchmarks/NOTES.md` section 28): the position tasks' policies end with
@@ -59,12 +59,12 @@ rows $O/study28_mco.json $O/study28_mao.json $O/study28_mco_guard_eval0_gpu.json
     | sed 's/^| MARA\([A-Za-z]*\) |/| MARA\1, study 28 |/'
 rows $O/study28_mco.json $O/study28_mao.json $O/study28_mco_guard_eval3_gpu.json $O/study28_mao_guard_eval3_gpu.json \
     | sed 's/^| MARA\([A-Za-z]*\) |/| MARA\1, study 28, eval seed 3 |/'
-rows $P/paper_table_presets.json:0,1 $P/paper_table_presets_MARACollisionOrient_guard_eval_gpu.json \
+rows $P/paper_table_presets.json.gz:0,1 $P/paper_table_presets_MARACollisionOrient_guard_eval_gpu.json \
     $P/paper_table_presets_MARAOrient_guard_eval_gpu.json \
     | sed 's/^| MARA\([A-Za-z]*\) |/| MARA\1, previous paper table |/'
-rows $P/paper_table_presets.json:2 $P/paper_table_presets_MARACollision_ik_finish_eval_gpu.json \
+rows $P/paper_table_presets.json.gz:2 $P/paper_table_presets_MARACollision_ik_finish_eval_gpu.json \
     | sed 's/^| MARACollision | staggered |/| MARACollision, previous paper table | staggered + ik_finish 0.06 at inference |/'
-rows $P/paper_table_presets.json:2 $P/paper_table_presets_MARACollision_ik_finish_eval_seed3_gpu.json \
+rows $P/paper_table_presets.json.gz:2 $P/paper_table_presets_MARACollision_ik_finish_eval_seed3_gpu.json \
     | sed 's/^| MARACollision | staggered |/| MARACollision, previous paper table, eval seed 3 | staggered + ik_finish 0.06 at inference |/'
 cat <<'TXT'
 
@@ -76,7 +76,7 @@ Times in these rows are the training runs' (earlier rules in their probes). Comm
 ## The previous paper table (session 27's code)
 
 TXT
-python3 paper_table.py $P/paper_table_presets.json $P/paper_table_position_seeds5-9.json \
+python3 paper_table.py $P/paper_table_presets.json.gz $P/paper_table_position_seeds5-9.json.gz \
     $P/paper_table_presets_MARAOrient_eval_cpu.json $P/paper_table_presets_MARACollisionOrient_eval_cpu.json \
     | sed -n '/^| task/,/^$/p'
 cat <<'TXT'
