@@ -116,6 +116,9 @@ class RobustnessConfig(BenchConfig):
     plan_steps: int = -1
     """Every judgement: the deployed policy's imagined train-driver steps
     (EvalConfig.plan_steps; -1: as each checkpoint was trained; >= 0 replaces it, 0: off)."""
+    plan_starts: int = -1
+    """Every judgement: the deployed plan's other starting postures (EvalConfig.plan_starts;
+    -1: as each checkpoint was trained; >= 0 replaces it, 0: off)."""
     commit_rad: float = -1.0
     """Every judgement: the deployed policy's held commands' arrival tolerance
     (EvalConfig.commit_rad; -1: as each checkpoint was trained; >= 0 replaces it, 0: off)."""
@@ -164,9 +167,14 @@ class RobustnessConfig(BenchConfig):
         check_int("eval_seed", self.eval_seed, minimum=0)
         check_int("parallel", self.parallel, minimum=0)
         check_int("select_seed", self.select_seed, minimum=-1)
-        from mara_mjx.ppo.parametrisation import check_commit_override, check_plan_override
+        from mara_mjx.ppo.parametrisation import (
+            check_commit_override,
+            check_plan_override,
+            check_starts_override,
+        )
 
         check_plan_override(self.plan_steps)
+        check_starts_override(self.plan_starts)
         check_commit_override(self.commit_rad)
         if self.selection_seed == self.eval_seed:
             raise ValueError(

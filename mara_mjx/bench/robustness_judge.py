@@ -51,7 +51,7 @@ def judge_fixed(env: Any, policy: Any, n: int, config: Any, orientation: bool):
     paper_cfg = EvalConfig(
         episodes=config.episodes, seed=config.eval_seed,
         collision_guard_mm=config.collision_guard_mm, plan_steps=config.plan_steps,
-        commit_rad=config.commit_rad,
+        plan_starts=config.plan_starts, commit_rad=config.commit_rad,
     )  # fmt: skip
     hold_cfg = paper_cfg.replace(tolerance_mm=0.0)
     paper = _vmapped(env, paper_cfg, None, policy, n)
@@ -137,6 +137,7 @@ def judge_targets(env: Any, policy: Any, n: int, config: Any, orientation: bool)
         seed=config.eval_seed,
         collision_guard_mm=config.collision_guard_mm,
         plan_steps=config.plan_steps,
+        plan_starts=config.plan_starts,
         commit_rad=config.commit_rad,
     )
     params, poses = held_out_params(env, eval_cfg)
@@ -153,7 +154,8 @@ def judge_real(meta: dict[str, Any], policy: Any, n: int, config: Any, orientati
     eval_cfg = EvalConfig(
         episodes=config.draws, seed=config.eval_seed, tolerance_mm=0.0,
         rate_limit=config.rate_limit, collision_guard_mm=config.collision_guard_mm,
-        plan_steps=config.plan_steps, commit_rad=config.commit_rad,
+        plan_steps=config.plan_steps, plan_starts=config.plan_starts,
+        commit_rad=config.commit_rad,
     )  # fmt: skip
     rows: list[dict[str, Any]] = [{"real": {}} for _ in range(n)]
     for v in config.velocities:

@@ -93,6 +93,7 @@ def export_policy(
     batch: int | None = None,
     plan_steps: int | None = None,
     commit_rad: float | None = None,
+    plan_starts: int | None = None,
 ) -> Path:
     """Write the deterministic policy of `checkpoint` (a checkpoint file, or a run folder:
     its newest checkpoint) to `out_path`, atomically: .npz (numpy) or .onnx (an ONNX
@@ -106,7 +107,9 @@ def export_policy(
     `plan_steps`: the deployed policy's imagined train-driver steps
     (PolicyConfig.plan_steps, deployed only; None: as trained; 0: off). `commit_rad`:
     the held commands' arrival tolerance (PolicyConfig.commit_rad; None: as trained; 0:
-    off), written in the metadata (its "commit_rad") for the runner to apply. Raises
+    off), written in the metadata (its "commit_rad") for the runner to apply.
+    `plan_starts`: the plan's other starting postures (PolicyConfig.plan_starts; None: as
+    trained; 0: off; 0 too where plan_steps is set to 0). Raises
     ExportError (or mara_mjx.ppo.CheckpointError, also a ValueError) with what is
     wrong."""
     import mara_mjx
@@ -136,11 +139,20 @@ def export_policy(
     source = ckpt.find_checkpoint(checkpoint)
     arrays, meta = ckpt.load_checkpoint(source)
     policy = policy_io.policy_from_checkpoint(arrays, meta)
+    plan: dict[str, int] = {}
     if plan_steps is not None:
+        plan["plan_steps"] = int(plan_steps)
+        if int(plan_steps) == 0:  # no plan, nothing to restart
+            plan["plan_starts"] = 0
+    if plan_starts is not None:
+        plan["plan_starts"] = int(plan_starts)
+    if plan:
         try:
-            policy = policy.replace(config=policy.config.replace(plan_steps=int(plan_steps)))
+            policy = policy.replace(config=policy.config.replace(**plan))
         except ValueError as e:
-            raise ExportError(f"--plan_steps: {e}") from e
+            raise ExportError(
+                f"--{'plan_starts' if plan_starts is not None else 'plan_steps'}: {e}"
+            ) from e
     if commit_rad is not None:
         try:
             policy = policy.replace(config=policy.config.replace(commit_rad=float(commit_rad)))
@@ -154,6 +166,7 @@ def export_policy(
         "task_space_actions": config.task_space_actions,
         "collision_guard_mm": config.collision_guard_mm,
         "plan_steps": config.plan_steps,
+        "plan_starts": config.plan_starts,
     }
     jacobian = [(k, v) for k, v in options.items() if v]
     if jacobian and out_path.suffix == ".npz":
@@ -312,6 +325,14 @@ def build_parser() -> argparse.ArgumentParser:
         "steps (PolicyConfig.plan_steps; for a servo-driven arm; 0 off); default as trained",
     )
     parser.add_argument(
+        "--plan_starts",
+        type=int,
+        default=None,
+        help="where the plan's own landing misses, the deployed policy also imagines it from "
+        "this many other postures and commands a landing that reaches (PolicyConfig."
+        "plan_starts; needs plan_steps; 0 off); default as trained",
+    )
+    parser.add_argument(
         "--commit_rad",
         type=float,
         default=None,
@@ -347,6 +368,7 @@ def main(argv: list[str] | None = None) -> int:
             args.batch,
             args.plan_steps,
             args.commit_rad,
+            args.plan_starts,
         )
         if out.suffix == ".onnx":
             print(f"wrote {out}: ONNX (opset 17), input obs (N, obs_size) float32, outputs "

@@ -58,7 +58,11 @@ from mara_mjx.cli.common import (
     parse_bool,
     run_cli,
 )
-from mara_mjx.ppo.parametrisation import check_commit_override, check_plan_override
+from mara_mjx.ppo.parametrisation import (
+    check_commit_override,
+    check_plan_override,
+    check_starts_override,
+)
 from mara_mjx.runtime import files, outputs, runs
 
 PROG = "mara_mjx.pick"
@@ -106,6 +110,11 @@ def build_parser() -> argparse.ArgumentParser:
         "-1 as each seed was trained (default), 0 off, > 0 that many",
     )  # fmt: skip
     parser.add_argument(
+        "--plan_starts", type=int, default=-1,
+        help="the deployed plan's other starting postures (PolicyConfig.plan_starts): "
+        "-1 as each seed was trained (default), 0 off, > 0 that many",
+    )  # fmt: skip
+    parser.add_argument(
         "--commit_rad", type=float, default=-1.0,
         help="the deployed policy holds each command until the arm is within this many rad "
         "of it or stops (PolicyConfig.commit_rad): -1 as each seed was trained (default), 0 off",
@@ -149,6 +158,7 @@ def check_args(args: argparse.Namespace) -> None:
         raise UserError(f"--collision_guard_mm must be -1 or >= 0, got {args.collision_guard_mm}")
     try:
         check_plan_override(args.plan_steps)
+        check_starts_override(args.plan_starts)
         check_commit_override(args.commit_rad)
     except ValueError as e:
         raise UserError(f"--{e}") from e
@@ -192,7 +202,8 @@ def _main(args: argparse.Namespace) -> int:
     settings = SimpleNamespace(
         draws=args.draws, eval_seed=args.seed, velocities=tuple(args.velocities),
         rate_limit=args.rate_limit, collision_guard_mm=args.collision_guard_mm,
-        plan_steps=args.plan_steps, commit_rad=args.commit_rad, poses=poses,
+        plan_steps=args.plan_steps, plan_starts=args.plan_starts, commit_rad=args.commit_rad,
+        poses=poses,
     )  # fmt: skip
     train = f"; the train driver on {poses} poses (seed {args.seed})" if poses else ""
     print(f"run: {top}, seeds {seed_ids}, env {meta['env_name']}: the real driver at "

@@ -135,6 +135,10 @@ def build_model(
     obs = check_observations(meta, 128 if batch is None else batch * max(1, 128 // batch))
     want = [np.asarray(x) for x in jax.jit(step)(obs)]
     steps = getattr(policy.config.policy, "plan_steps", 0)
+    if steps and getattr(policy.config.policy, "plan_starts", 0):  # the longest imagination
+        from mara_mjx.ppo.parametrisation import PLAN_START_STEPS
+
+        steps = max(steps, PLAN_START_STEPS)
     if steps:
         # K imagined steps amplify float32's rounding where the plan is sensitive to its
         # start: on a trained random-target policy at K = 16, one or two of 128 check

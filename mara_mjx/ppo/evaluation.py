@@ -148,8 +148,15 @@ def make_evaluate(
     def evaluate(policy: Policy) -> dict[str, jax.Array]:
         if config.collision_guard_mm >= 0.0:
             policy = with_collision_guard(policy, config.collision_guard_mm)
+        plan = {}
         if config.plan_steps >= 0:
-            policy = with_deployed(policy, "plan_steps", config.plan_steps)
+            plan["plan_steps"] = config.plan_steps
+            if config.plan_steps == 0:  # no plan, nothing to restart
+                plan["plan_starts"] = 0
+        if config.plan_starts >= 0:
+            plan["plan_starts"] = config.plan_starts
+        if plan:
+            policy = with_deployed(policy, **plan)
         if hasattr(policy, "config"):  # a checkpoint's Policy (an exported file has none)
             check_plan_period(policy.config.policy.plan_steps, env)  # (at trace time)
         commit = deployed_commit(policy, config)
@@ -226,17 +233,21 @@ def with_collision_guard(policy: Any, mm: float) -> Any:
     return with_deployed(policy, "collision_guard_mm", float(mm))
 
 
-def with_deployed(policy: Any, field: str, value: Any) -> Any:
+def with_deployed(policy: Any, field: str | None = None, value: Any = None, **fields) -> Any:
     """`policy` (a checkpoint's Policy) with the deployed-only PolicyConfig `field` set to
-    `value` (collision_guard_mm, plan_steps); ValueError for a policy without a config (an
-    exported file's, a plain function: it carries the rules it was exported with)."""
+    `value` (collision_guard_mm, plan_steps, plan_starts), or each of `fields` at once;
+    ValueError for a policy without a config (an exported file's, a plain function: it
+    carries the rules it was exported with)."""
+    if field is not None:
+        fields[field] = value
     config = getattr(policy, "config", None)
     if config is None or not hasattr(policy, "replace"):
+        named = ", ".join(f"{k}={v}" for k, v in fields.items())
         raise ValueError(
-            f"{field}={value} sets a checkpoint policy's deployed rule, but this policy has "
+            f"{named} sets a checkpoint policy's deployed rule, but this policy has "
             "no config (an exported file carries the rules it was exported with)"
         )
-    return policy.replace(config=config.replace(**{field: value}))
+    return policy.replace(config=config.replace(**fields))
 
 
 def evaluate(

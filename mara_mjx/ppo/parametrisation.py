@@ -30,6 +30,16 @@ MAX_PLAN_STEPS = 64
 """The most imagined steps PolicyConfig.plan_steps allows (each costs a policy call)."""
 MAX_COMMIT_RAD = 0.5
 """The widest arrival tolerance PolicyConfig.commit_rad allows (rad per joint)."""
+MAX_PLAN_STARTS = 32
+"""The most other starting postures PolicyConfig.plan_starts allows (each costs
+PLAN_START_STEPS policy calls per decision)."""
+PLAN_START_STEPS = 32
+"""Imagined train-driver steps from each of PolicyConfig.plan_starts' postures (twice the
+recipes' plan_steps: from a far posture 16 steps often end short of the target; measured,
+benchmarks/NOTES.md section 47)."""
+PLAN_KEEP_MM = 1.0
+"""PolicyConfig.plan_starts keeps the policy's own landing when it is within this (mm on
+every position axis, deg of orientation), and takes another start's only when that one is."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -167,6 +177,21 @@ class PolicyConfig(_ConfigMixin):
     plan; near the target the plan and the first step agree. Training is unchanged.
     Needs a MARA arm and the default control period. Export: .onnx traces it; .npz
     refuses it. 0: off."""
+    plan_starts: int = 0
+    """Deployed only, > 0 (needs plan_steps): when the policy's own imagined landing ends
+    farther than PLAN_KEEP_MM from the target (on any position axis, mm, or in orientation,
+    deg), the policy also imagines PLAN_START_STEPS train-driver steps toward the same
+    target from each of this many other starting postures (fixed, the same for every
+    decision: uniform within 0.8 x the joint ranges, numpy's default_rng(0), so the first
+    K of a larger set are the K of a smaller one), and commands the landing nearest the
+    target among those within PLAN_KEEP_MM; where none is, its own. A trained policy can
+    lead the arm onto a branch where the wrist stops at its limit short of a pose near the
+    region's edge, and stay there (a fixed point of the policy: the random-target tasks'
+    training misses, benchmarks/NOTES.md section 43); from another start the same policy
+    takes another branch. This is inverse kinematics' random restarts with the policy as
+    the solver. Each decision costs plan_steps + plan_starts x PLAN_START_STEPS policy
+    calls. Training is unchanged. Needs a MARA arm and the default control period.
+    Export: .onnx traces it; .npz refuses it. 0: off."""
     commit_rad: float = 0.0
     """Deployed only, rad, > 0: the deployed policy holds each command until the arm has
     carried it out, and only then chooses again: the joint targets sent last are sent
@@ -227,6 +252,16 @@ class PolicyConfig(_ConfigMixin):
             raise ValueError(
                 f"plan_steps must be an int in [0, {MAX_PLAN_STEPS}] (imagined train-driver "
                 f"steps; 0: off), got {self.plan_steps!r}"
+            )
+        if not _is_int(self.plan_starts) or not 0 <= self.plan_starts <= MAX_PLAN_STARTS:
+            raise ValueError(
+                f"plan_starts must be an int in [0, {MAX_PLAN_STARTS}] (other starting "
+                f"postures of the plan; 0: off), got {self.plan_starts!r}"
+            )
+        if self.plan_starts and not self.plan_steps:
+            raise ValueError(
+                f"plan_starts={self.plan_starts} imagines the plan from other postures and "
+                "needs plan_steps > 0; set plan_steps (e.g. 16), or plan_starts=0"
             )
         _check_range("commit_rad", self.commit_rad, 0.0, MAX_COMMIT_RAD)
         if self.collision_guard_mm > 0.0 and not self.relative_actions:
@@ -297,6 +332,15 @@ def check_plan_override(plan_steps: Any) -> None:
         )
 
 
+def check_starts_override(plan_starts: Any) -> None:
+    """ValueError unless `plan_starts` is an override of PolicyConfig.plan_starts as the
+    evaluations take it: -1 (as trained), or a valid plan_starts (0: off)."""
+    if not _is_int(plan_starts) or not -1 <= plan_starts <= MAX_PLAN_STARTS:
+        raise ValueError(
+            f"plan_starts must be -1 (as trained) or in [0, {MAX_PLAN_STARTS}], got {plan_starts!r}"
+        )
+
+
 def check_commit_override(commit_rad: Any) -> None:
     """ValueError unless `commit_rad` is an override of PolicyConfig.commit_rad as the
     evaluations take it: -1 (as trained or exported), or a valid commit_rad (0: off)."""
@@ -341,6 +385,7 @@ def resolve(policy: PolicyConfig, env: Any) -> PolicyConfig:
         ("ik_finish", policy.ik_finish, "0"),
         ("collision_guard_mm", policy.collision_guard_mm, "0"),
         ("plan_steps", policy.plan_steps, "0"),
+        ("plan_starts", policy.plan_starts, "0"),
         ("commit_rad", policy.commit_rad, "0"),
     ):
         if value and not arm:

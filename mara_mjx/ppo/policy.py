@@ -49,9 +49,11 @@ class Policy:
         PolicyConfig.plan_steps, the landing of that many imagined train-driver steps)."""
         steps = self.config.policy.plan_steps
         if steps:  # the policy itself, without the plan, is what the plan imagines
-            return planned_landing(
-                self.replace(config=self.config.replace(plan_steps=0)), obs, steps
-            )
+            starts = self.config.policy.plan_starts
+            act = self.replace(config=self.config.replace(plan_steps=0, plan_starts=0))
+            if starts:
+                return restarted_landing(act, obs, steps, starts)
+            return planned_landing(act, obs, steps)
         return self.distribution(obs)[0]
 
     def distribution(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -101,6 +103,66 @@ def planned_landing(act: Any, obs: jax.Array, steps: int) -> jax.Array:
     if not isinstance(act, Policy):
         act = jax.tree_util.Partial(act)
     return jax.lax.fori_loop(0, steps, body, (obs, q0, target_pos, target_quat, act))[1]
+
+
+def start_postures(k: int) -> np.ndarray:
+    """(k, 6) rad: PolicyConfig.plan_starts' other starting postures, uniform within 0.8 x
+    the joint ranges from numpy's default_rng(0) (the first k of any larger set)."""
+    from mara_mjx.envs.task_space import joint_ranges
+
+    lo, hi = (np.asarray(x, np.float64) for x in joint_ranges())
+    return np.random.default_rng(0).uniform(0.8 * lo, 0.8 * hi, size=(k, 6)).astype(np.float32)
+
+
+def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.Array:
+    """PolicyConfig.plan_starts: `planned_landing(act, obs, steps)` where it ends within
+    PLAN_KEEP_MM of the target read off `obs`; else, of the landings of PLAN_START_STEPS
+    imagined steps from each of `start_postures(starts)` toward the same target, the
+    nearest to it among those within PLAN_KEEP_MM; else the own landing. The error of a
+    landing: the largest of its TCP's position error per axis (mm) and its orientation
+    error (deg, the angle of the rotation between the TCP's and the target's; none
+    without an orientation in `obs`), on the nominal arm. Batch-first like
+    planned_landing (jax2onnx exports it)."""
+    from mara_mjx.envs.geometry import quat_conj, quat_mul
+    from mara_mjx.envs.task_space import nominal_chain
+    from mara_mjx.ppo.parametrisation import PLAN_KEEP_MM, PLAN_START_STEPS
+
+    tcp = jnp.vectorize(nominal_chain().tcp, signature="(6)->(3),(4)")
+    orientation = obs.shape[-1] == 16
+    q0 = obs[..., :6]
+    pos0, quat0 = tcp(q0)
+    target_pos = pos0 - obs[..., 6:9]
+    target_quat = quat_mul(quat_conj(obs[..., 9:13]), quat0) if orientation else quat0
+
+    def error(q):
+        pos, quat = tcp(q)
+        err = 1000.0 * jnp.max(jnp.abs(pos - target_pos), axis=-1)
+        if orientation:
+            rot = quat_mul(quat, quat_conj(target_quat))
+            half = jnp.clip(jnp.linalg.norm(rot[..., 1:], axis=-1), 0.0, 1.0)
+            err = jnp.maximum(err, jnp.degrees(2.0 * jnp.arcsin(half)))
+        return err
+
+    def start_obs(start):
+        q = jnp.broadcast_to(jnp.asarray(start), q0.shape)
+        pos, quat = tcp(q)
+        parts = [q, pos - target_pos]
+        if orientation:
+            parts.append(quat_mul(quat, quat_conj(target_quat)))
+        return jnp.concatenate([*parts, jnp.zeros_like(pos)], -1)  # at rest
+
+    own = planned_landing(act, obs, steps)
+    best, best_err = own, error(own)
+    found = jnp.zeros(best_err.shape, bool)
+    for start in start_postures(starts):  # (unrolled: a few, each a fixed constant)
+        land = planned_landing(act, start_obs(start), PLAN_START_STEPS)
+        err = error(land)
+        better = (err <= PLAN_KEEP_MM) & (~found | (err < best_err))
+        best = jnp.where(better[..., None], land, best)
+        best_err = jnp.where(better, err, best_err)
+        found = found | better
+    keep = error(own) <= PLAN_KEEP_MM
+    return jnp.where((keep | ~found)[..., None], own, best)
 
 
 def rate_limited(policy: Any, max_step: Any, lower: Any = None, upper: Any = None) -> Any:

@@ -96,6 +96,10 @@ class EvalConfig(_ConfigMixin):
     """The evaluated policy's imagined train-driver steps (PolicyConfig.plan_steps, a
     deployed-only rule, so the same trained parameters): -1 as the checkpoint was trained
     (default), >= 0 replaces it (0: off)."""
+    plan_starts: int = -1
+    """The evaluated policy's other starting postures of the plan (PolicyConfig.plan_starts,
+    a deployed-only rule; needs plan_steps): -1 as the checkpoint was trained (default),
+    >= 0 replaces it (0: off)."""
     commit_rad: float = -1.0
     """The evaluated policy's arrival tolerance for held commands (PolicyConfig.commit_rad,
     a deployed-only rule applied by the evaluation loop around the policy): -1 as the
@@ -108,7 +112,12 @@ class EvalConfig(_ConfigMixin):
         _check_range("tolerance_mm", self.tolerance_mm, 0.0, math.inf)
         if self.collision_guard_mm != -1.0:
             _check_range("collision_guard_mm", self.collision_guard_mm, 0.0, 100.0)
-        from mara_mjx.ppo.parametrisation import check_commit_override, check_plan_override
+        from mara_mjx.ppo.parametrisation import (
+            check_commit_override,
+            check_plan_override,
+            check_starts_override,
+        )
 
         check_plan_override(self.plan_steps)
+        check_starts_override(self.plan_starts)
         check_commit_override(self.commit_rad)

@@ -1,0 +1,125 @@
+"""PolicyConfig.plan_starts (mara_mjx.ppo.policy.restarted_landing): where the policy's own
+plan misses the target, the plan is imagined again from fixed other postures and a landing
+that reaches is commanded. Checked with an IK solver as the policy (a damped
+least-squares step, which reaches from most postures): the own landing is kept where it
+reaches, a restart's is taken only where it reaches, more targets end reached; the
+options' bad values refused; the evaluation's and export's overrides; the ONNX trace."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_export_plots import make_run
+
+import mara_mjx
+from mara_mjx.envs.geometry import quat_conj, quat_mul
+from mara_mjx.envs.task_space import nominal_chain, pose_step
+from mara_mjx.ppo import PolicyConfig, make_policy
+from mara_mjx.ppo.config import EvalConfig
+from mara_mjx.ppo.evaluation import with_deployed
+from mara_mjx.ppo.parametrisation import PLAN_KEEP_MM
+from mara_mjx.ppo.policy import planned_landing, restarted_landing, start_postures
+
+IK = {"ik_prior": "residual", "ik_gate": 0.1}
+
+
+def ik(obs):
+    """A policy that is an IK solver: one bounded damped-least-squares step to the target."""
+    return obs[..., :6] + pose_step(obs[..., :6], obs[..., 6:9], obs[..., 9:13])
+
+
+def pose_error(q, obs):
+    """The largest of the position error per axis (mm) and the orientation error (deg) of
+    the nominal TCP at joints q to the target that obs (at its own joints) reports."""
+    tcp = jnp.vectorize(nominal_chain().tcp, signature="(6)->(3),(4)")
+    p0, r0 = tcp(obs[..., :6])
+    target_p, target_r = p0 - obs[..., 6:9], quat_mul(quat_conj(obs[..., 9:13]), r0)
+    p, r = tcp(q)
+    rot = quat_mul(r, quat_conj(target_r))
+    deg = np.degrees(
+        2 * np.arcsin(np.clip(np.linalg.norm(np.asarray(rot)[..., 1:], axis=-1), 0, 1))
+    )
+    return np.maximum(1000 * np.abs(np.asarray(p - target_p)).max(-1), deg)
+
+
+def test_restarts_take_a_reaching_landing_only_where_the_own_one_misses():
+    env = mara_mjx.make("MARAOrientRandomTarget")
+    state = jax.vmap(env.reset)(jax.random.split(jax.random.key(3), 64))
+    obs = state.obs
+    own = np.asarray(jax.jit(lambda o: planned_landing(ik, o, 1))(obs))  # one step: short
+    got = np.asarray(jax.jit(lambda o: restarted_landing(ik, o, 1, 4))(obs))
+    own_err, got_err = pose_error(own, obs), pose_error(got, obs)
+    assert (own_err > PLAN_KEEP_MM).all(), "one IK step from the reset pose should not reach"
+    moved = np.abs(got - own).max(-1) > 0
+    assert moved.sum() >= 32, "the restarts should reach most of these targets"
+    assert (got_err[moved] <= PLAN_KEEP_MM + 1e-3).all()  # only a landing that reaches
+    np.testing.assert_array_equal(got[~moved], own[~moved])  # else the own one
+    # at the target itself the own landing reaches and is kept, bit for bit
+    at = obs.at[:, 6:9].set(0.0).at[:, 9:13].set(jnp.array([1.0, 0, 0, 0]))
+    np.testing.assert_array_equal(
+        np.asarray(restarted_landing(ik, at, 1, 4)), np.asarray(planned_landing(ik, at, 1))
+    )
+    # one observation gives its row of the batch; the starts are a fixed prefix
+    np.testing.assert_allclose(np.asarray(restarted_landing(ik, obs[5], 1, 4)), got[5], atol=1e-5)
+    np.testing.assert_array_equal(start_postures(8)[:4], start_postures(4))
+
+
+def test_bad_plan_starts_are_refused_with_the_valid_range():
+    for bad in (-1, 33, 1.5):
+        with pytest.raises(ValueError, match=r"plan_starts must be an int in \[0, 32\]"):
+            PolicyConfig(plan_steps=4, plan_starts=bad, relative_actions=True)
+    with pytest.raises(ValueError, match="needs plan_steps > 0"):
+        PolicyConfig(plan_starts=4, relative_actions=True)
+    for bad in (-2, 33):
+        with pytest.raises(ValueError, match=r"plan_starts must be -1 \(as trained\) or in"):
+            EvalConfig(plan_starts=bad)
+
+
+def test_the_overrides_turn_restarts_on_and_off(tmp_path):
+    from mara_mjx.cli.export import ExportError, export_policy
+    from mara_mjx.ppo.evaluation import make_evaluate
+
+    run = make_run(tmp_path / "run", "MARAOrient", True, relative=True, plan_steps=2,
+                   plan_starts=2, constant_actor=True, **IK)  # fmt: skip
+    policy = make_policy(run)
+    assert policy.config.policy.plan_starts == 2
+    obs = jax.vmap(mara_mjx.make("MARAOrient").reset)(jax.random.split(jax.random.key(0), 4)).obs
+    base = with_deployed(policy, plan_steps=0, plan_starts=0)  # what the plan imagines
+    np.testing.assert_allclose(
+        np.asarray(policy(obs)), np.asarray(restarted_landing(base, obs, 2, 2)), atol=1e-6
+    )
+    # the plan turned off takes its restarts with it, in the evaluation and the export
+    env = mara_mjx.make("MARAOrient")
+    make_evaluate(env, EvalConfig(episodes=2, plan_steps=0))(policy)
+    with pytest.raises(ValueError, match="needs plan_steps > 0"):
+        make_evaluate(env, EvalConfig(episodes=2, plan_steps=0, plan_starts=2))(policy)
+    # (.npz refuses the IK prior: reached only once the plan's options were accepted)
+    with pytest.raises(ExportError, match="ik_prior='residual'"):
+        export_policy(run, tmp_path / "p.npz", plan_steps=0)
+    with pytest.raises(ExportError, match="--plan_starts: .*needs plan_steps > 0"):
+        export_policy(run, tmp_path / "p.npz", plan_steps=0, plan_starts=2)
+    assert not (tmp_path / "p.npz").exists()
+
+
+def test_plan_starts_export_to_onnx_and_match(tmp_path):
+    pytest.importorskip("jax2onnx")
+    ort = pytest.importorskip("onnxruntime")
+    import json
+
+    import onnx
+
+    from mara_mjx.cli.export import export_policy
+    from mara_mjx.deploy import onnx_graph
+
+    run = make_run(tmp_path / "run", "MARAOrient", True, relative=True, plan_steps=2,
+                   constant_actor=True, **IK)  # fmt: skip
+    out = export_policy(run, tmp_path / "policy.onnx", plan_starts=2)  # self-checked
+    meta = json.loads({p.key: p.value for p in onnx.load(str(out)).metadata_props}["mara_mjx"])
+    obs = onnx_graph.check_observations(meta, 16)
+    session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
+    (got,) = session.run(["action"], {"obs": obs})
+    policy = with_deployed(make_policy(run), plan_starts=2)
+    want = np.asarray(jax.jit(lambda p, o: p(o))(policy, jnp.asarray(obs)))
+    np.testing.assert_allclose(got, want, atol=1e-4 * (1 + 32 / 4))
