@@ -2,7 +2,8 @@
 commands the landing of K imagined train-driver steps on the nominal arm. Checked against
 the env itself: K steps of the train driver from the same observation land where the plan
 says (where no step collides), on a task with and without an orientation; the options'
-bad values refused; the evaluation's override; the ONNX trace of a planned policy."""
+bad values refused; the evaluation's override; the ONNX trace of a planned policy (with
+one of PolicyConfig.plan_starts' restarts, whose graph holds the own plan)."""
 
 from __future__ import annotations
 
@@ -109,10 +110,11 @@ def test_plan_steps_exports_to_onnx_and_matches(tmp_path):
     # iterated map amplifies float32 rounding beyond any fixed tolerance
     run = make_run(tmp_path / "run", "MARAOrient", True, relative=True, plan_steps=K,
                    constant_actor=True, **IK)  # fmt: skip
-    out = export_policy(run, tmp_path / "policy.onnx")  # self-checked against JAX (1e-4)
+    # with one restart (PolicyConfig.plan_starts): its graph holds the own plan too
+    out = export_policy(run, tmp_path / "policy.onnx", plan_starts=1)  # self-checked vs JAX
     with pytest.raises(ExportError, match="plan_steps"):
         export_policy(run, tmp_path / "policy.npz")
-    policy = make_policy(run)
+    policy = with_deployed(make_policy(run), plan_starts=1)
     assert policy.config.policy.plan_steps == K
     import json
 
@@ -124,6 +126,7 @@ def test_plan_steps_exports_to_onnx_and_matches(tmp_path):
     session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
     (got,) = session.run(["action"], {"obs": obs})
     want = np.asarray(jax.jit(lambda p, o: p(o))(policy, jnp.asarray(obs)))
-    np.testing.assert_allclose(got, want, atol=1e-4 * (1 + K / 4))
-    unplanned = np.asarray(with_deployed(policy, "plan_steps", 0)(jnp.asarray(obs)))
+    np.testing.assert_allclose(got, want, atol=1e-4 * (1 + 32 / 4))  # (a restart: 32 steps)
+    assert meta["recipe"]["config"]["policy"]["plan_starts"] == 1  # in the metadata
+    unplanned = np.asarray(with_deployed(policy, plan_steps=0, plan_starts=0)(jnp.asarray(obs)))
     assert np.abs(got - unplanned).max() > 1e-3

@@ -34,32 +34,6 @@ cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
 rm -f /tmp/res/studies.log /tmp/res/sent
 R="cli --randomize --train_clearance_penalty 1 --plan_steps 16 --commit_rad 0.01"
-picks_of() {  # NAME: the judged seeds of /tmp/res/NAME's study
-  python -c "import json,sys; print(*[r['seed'] for r in json.load(open(sys.argv[1]))['records'] if r['kind'] == 'seed'])" /tmp/res/$1/robustness.json
-}
-export_all() {  # RUN OUT SEEDS...: each seed of RUN exported to OUT/policy_S.onnx, 8 at a time
-  local run=$1 out=$2 pids=()
-  shift 2
-  mkdir -p $out
-  for s in "$@"; do  # (its own jobs only: A's CPU cells run on beside them)
-    JAX_PLATFORMS=cpu python -m mara_mjx.export "$run/seed_$s" $out/policy_$s.onnx > $out/export_$s.log 2>&1 &
-    pids+=($!)
-    [ ${#pids[@]} -eq 8 ] && { wait "${pids[@]}"; pids=(); }
-  done
-  [ ${#pids[@]} -gt 0 ] && wait "${pids[@]}"
-  echo "export $(basename $out) DONE $(ls $out/*.onnx | wc -l)" >> /tmp/res/studies.log
-  tar czf /tmp/res/$(basename $out).tgz.part -C /tmp/res $(basename $out) && mv /tmp/res/$(basename $out).tgz.part /tmp/res/$(basename $out).tgz
-}
-loops() {  # NAME LABEL P: every file of /tmp/res/onnx_NAME at both speeds, randomised
-  for f in /tmp/res/onnx_$1/policy_*.onnx; do
-    s=$(basename $f .onnx); s=${s#policy_}
-    for v in 0.3 0.5; do
-      printf '%q ' "loop_${1}_${s}_$v" "$f" --label "$2" --velocities $v --latencies --calibrations; echo
-    done
-  done > /tmp/res/jobs_loop_$1
-  cells /tmp/res/jobs_loop_$1 $3
-  tar czf /tmp/res/cells_loop_$1.tgz.part -C /tmp/res/cells $(cd /tmp/res/cells && ls -d loop_$1_*) && mv /tmp/res/cells_loop_$1.tgz.part /tmp/res/cells_loop_$1.tgz
-}
 picks() {  # NAME OFFSET RECIPE [N]: N (8) picks of 4 among 4N seeds from OFFSET, exported, in the loop
   local n=$1 offset=$2 recipe=$3 k=${4:-8} run p
   mcort $n "$recipe" --seeds $k --seed_offset $offset --select 4

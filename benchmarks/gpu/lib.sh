@@ -10,6 +10,10 @@
 #   mcort NAME RECIPE FLAGS...: one MARACollisionOrientRandomTarget robustness study (real
 #     driver without the rate limit, evaluation seed 1000) into /tmp/res/NAME, packed;
 #   pack NAME: /tmp/res/NAME and NAME.log into /tmp/res/NAME.tgz (whole or not at all);
+#   picks_of NAME: the judged seeds of /tmp/res/NAME's study; export_all RUN OUT SEEDS...:
+#     each seed exported to OUT/policy_S.onnx (8 at a time; EXPORT_FLAGS, if set, added);
+#     loops NAME LABEL P: every file of /tmp/res/onnx_NAME in evaluate's loop at 0.3 and
+#     0.5 rad/s, randomised, P cells at once (moved here from anypose_44.sh);
 #   cells JOBS P: run a file of deploy_sweep.py argument lines (NAME ARGS..., each line
 #     as bash quotes it: printf '%q ' per argument), P at a time (one
 #     1,000-episode cell per line took 4-5 minutes of one CPU core on an H200 host,
@@ -56,5 +60,31 @@ cells() {
   mkdir -p /tmp/res/cells
   export -f cell
   xargs -d '\n' -P "$2" -n 1 bash -c 'eval "cell $1"' _ < "$1" || echo "cells $1 FAILED $?" >> /tmp/res/studies.log
+}
+picks_of() {  # NAME: the judged seeds of /tmp/res/NAME's study
+  python -c "import json,sys; print(*[r['seed'] for r in json.load(open(sys.argv[1]))['records'] if r['kind'] == 'seed'])" /tmp/res/$1/robustness.json
+}
+export_all() {  # RUN OUT SEEDS...: each seed of RUN exported to OUT/policy_S.onnx, 8 at a time
+  local run=$1 out=$2 pids=()
+  shift 2
+  mkdir -p $out
+  for s in "$@"; do  # (its own jobs only: A's CPU cells run on beside them)
+    JAX_PLATFORMS=cpu python -m mara_mjx.export "$run/seed_$s" $out/policy_$s.onnx $EXPORT_FLAGS > $out/export_$s.log 2>&1 &
+    pids+=($!)
+    [ ${#pids[@]} -eq 8 ] && { wait "${pids[@]}"; pids=(); }
+  done
+  [ ${#pids[@]} -gt 0 ] && wait "${pids[@]}"
+  echo "export $(basename $out) DONE $(ls $out/*.onnx | wc -l)" >> /tmp/res/studies.log
+  tar czf /tmp/res/$(basename $out).tgz.part -C /tmp/res $(basename $out) && mv /tmp/res/$(basename $out).tgz.part /tmp/res/$(basename $out).tgz
+}
+loops() {  # NAME LABEL P: every file of /tmp/res/onnx_NAME at both speeds, randomised
+  for f in /tmp/res/onnx_$1/policy_*.onnx; do
+    s=$(basename $f .onnx); s=${s#policy_}
+    for v in 0.3 0.5; do
+      printf '%q ' "loop_${1}_${s}_$v" "$f" --label "$2" --velocities $v --latencies --calibrations; echo
+    done
+  done > /tmp/res/jobs_loop_$1
+  cells /tmp/res/jobs_loop_$1 $3
+  tar czf /tmp/res/cells_loop_$1.tgz.part -C /tmp/res/cells $(cd /tmp/res/cells && ls -d loop_$1_*) && mv /tmp/res/cells_loop_$1.tgz.part /tmp/res/cells_loop_$1.tgz
 }
 if [ -f SOURCE_COMMIT ]; then export MARA_MJX_GIT_COMMIT=$(cat SOURCE_COMMIT); fi

@@ -1,0 +1,59 @@
+#!/bin/bash
+# GPU driver (issues 31 and 32; NOTES section 47): the plan's restarts (PolicyConfig.plan_starts,
+# deployed only) on MARACollisionOrientRandomTarget seeds trained WITHOUT a pick. Per GPU
+# (CUDA_VISIBLE_DEVICES) one study of 16 fresh seeds, judged as trained and again with
+# --plan_starts 8 on the same training (the second study reuses the first one's run:
+# same --work_dir, same train command), evaluation seed 1000:
+#   R  the any-pose recipe `cli --randomize --train_clearance_penalty 1 --plan_steps 16
+#      --commit_rad 0.01`: 1,000 held-out poses (train driver) and 1,000 randomised draws
+#      per speed on the real driver (0.3, 0.5 rad/s); then every seed exported with
+#      --plan_starts 8 and its .onnx in evaluate's loop at both speeds (issue 32: every
+#      training seed, no pick);
+#   P  the same without --randomize (the plain recipe), the same judgements and loops;
+#   C  the task's CLI default (`cli`, the random_target_orient preset): 1,000 held-out
+#      poses on the train driver, as trained and with --plan_steps 16 --plan_starts 8
+#      (issue 31's row).
+# Launch with setsid (as anypose_44.sh) and follow with poll.sh:
+#   bash benchmarks/gpu/starts_47.sh "rec_a 1392 R" "cli_a 1408 C" ["plain_a 1424 P" "rec_b 1440 R"]
+# as many specs as GPUs are used (the first n on n GPUs). Results in /tmp/res/*.tgz.
+cd "$(dirname "$0")/../.."
+. benchmarks/gpu/lib.sh
+rm -f /tmp/res/studies.log /tmp/res/sent
+R="cli --randomize --train_clearance_penalty 1 --plan_steps 16 --commit_rad 0.01"
+P="cli --train_clearance_penalty 1 --plan_steps 16 --commit_rad 0.01"
+judged() {  # NAME WORK RECIPE FLAGS...: one study into /tmp/res/NAME on the training in WORK
+  local n=$1 work=$2 recipe=$3
+  shift 3
+  python -m mara_mjx.benchmark robustness --eval_seed 1000 --seeds 16 \
+    --tasks MARACollisionOrientRandomTarget --recipes "$recipe" "$@" \
+    --out /tmp/res/$n --work_dir $work > /tmp/res/$n.log 2>&1
+  echo "$n DONE $?" >> /tmp/res/studies.log
+  pack $n
+}
+one() {  # NAME OFFSET KIND
+  local n=$1 offset=$2 kind=$3 recipe real run
+  case $kind in
+    R) recipe=$R; real="--real_driver --rate_limit false" ;;
+    P) recipe=$P; real="--real_driver --rate_limit false" ;;
+    C) recipe=cli; real="" ;;
+  esac
+  judged ${n} /tmp/work/$n "$recipe" --seed_offset $offset $real
+  if [ $kind = C ]; then
+    judged ${n}_s8 /tmp/work/$n "$recipe" --seed_offset $offset --plan_steps 16 --plan_starts 8
+    return
+  fi
+  judged ${n}_s8 /tmp/work/$n "$recipe" --seed_offset $offset $real --plan_starts 8
+  run=$(ls -d /tmp/work/$n/runs/*/ | head -1)
+  EXPORT_FLAGS="--plan_starts 8" export_all "$run" /tmp/res/onnx_$n $(seq $offset $((offset + 15)))
+  loops $n "MARACollisionOrientRandomTarget, $recipe, every seed (no pick), exported .onnx with --plan_starts 8" 14
+}
+n=$(nvidia-smi -L | wc -l)
+i=0
+for spec in "$@"; do
+  [ $i -ge $n ] && break
+  set -- $spec
+  (export CUDA_VISIBLE_DEVICES=$i; one $1 $2 $3) &
+  i=$((i + 1))
+done
+wait
+echo DRIVER_DONE >> /tmp/res/studies.log
