@@ -148,15 +148,7 @@ def make_evaluate(
     def evaluate(policy: Policy) -> dict[str, jax.Array]:
         if config.collision_guard_mm >= 0.0:
             policy = with_collision_guard(policy, config.collision_guard_mm)
-        plan = {}
-        if config.plan_steps >= 0:
-            plan["plan_steps"] = config.plan_steps
-            if config.plan_steps == 0:  # no plan, nothing to restart
-                plan["plan_starts"] = 0
-        if config.plan_starts >= 0:
-            plan["plan_starts"] = config.plan_starts
-        if plan:
-            policy = with_deployed(policy, **plan)
+        policy = deployed_plan(policy, config)
         if hasattr(policy, "config"):  # a checkpoint's Policy (an exported file has none)
             check_plan_period(policy.config.policy.plan_steps, env)  # (at trace time)
         commit = deployed_commit(policy, config)
@@ -212,6 +204,20 @@ def held_action(
     if commit > 0.0:
         action = committed(q, action, held, q_previous, commit, *bounds, xp=jnp)
     return action, q
+
+
+def deployed_plan(policy: Any, config: EvalConfig) -> Any:
+    """`policy` with EvalConfig's plan overrides (plan_steps, plan_starts; -1 leaves the
+    checkpoint's): plan_steps=0 turns its restarts off too. ValueError for a policy
+    without a config (an exported file's) when one is given, or an invalid pair."""
+    plan = {}
+    if config.plan_steps >= 0:
+        plan["plan_steps"] = config.plan_steps
+        if config.plan_steps == 0:  # no plan, nothing to restart
+            plan["plan_starts"] = 0
+    if config.plan_starts >= 0:
+        plan["plan_starts"] = config.plan_starts
+    return with_deployed(policy, **plan) if plan else policy
 
 
 def deployed_commit(policy: Any, config: EvalConfig) -> float:
