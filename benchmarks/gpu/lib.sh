@@ -75,7 +75,8 @@ export_all() {  # RUN OUT SEEDS...: each seed of RUN exported to OUT/policy_S.on
   done
   [ ${#pids[@]} -gt 0 ] && wait "${pids[@]}"
   echo "export $(basename $out) DONE $(ls $out/*.onnx | wc -l)" >> /tmp/res/studies.log
-  tar czf /tmp/res/$(basename $out).tgz.part -C /tmp/res $(basename $out) && mv /tmp/res/$(basename $out).tgz.part /tmp/res/$(basename $out).tgz
+  # (EXPORT_ONNX_TGZ=0: the logs only; a file with plan_starts 8 is ~20 MB, too many to bring back)
+  tar czf /tmp/res/$(basename $out).tgz.part -C /tmp/res $( [ "${EXPORT_ONNX_TGZ:-1}" = 0 ] && echo --exclude='*.onnx') $(basename $out) && mv /tmp/res/$(basename $out).tgz.part /tmp/res/$(basename $out).tgz
 }
 loops() {  # NAME LABEL P: every file of /tmp/res/onnx_NAME at both speeds, randomised
   for f in /tmp/res/onnx_$1/policy_*.onnx; do
