@@ -116,7 +116,7 @@ def export_policy(
     from mara_mjx.envs.arm import JOINTS
     from mara_mjx.ppo import checkpoint as ckpt
     from mara_mjx.ppo import policy as policy_io
-    from mara_mjx.ppo.parametrisation import check_plan_period
+    from mara_mjx.ppo.parametrisation import check_plan_period, plan_overrides
     from mara_mjx.runtime import outputs, runs
 
     out_path = Path(out_path)
@@ -139,13 +139,7 @@ def export_policy(
     source = ckpt.find_checkpoint(checkpoint)
     arrays, meta = ckpt.load_checkpoint(source)
     policy = policy_io.policy_from_checkpoint(arrays, meta)
-    plan: dict[str, int] = {}
-    if plan_steps is not None:
-        plan["plan_steps"] = int(plan_steps)
-        if int(plan_steps) == 0:  # no plan, nothing to restart
-            plan["plan_starts"] = 0
-    if plan_starts is not None:
-        plan["plan_starts"] = int(plan_starts)
+    plan = plan_overrides(plan_steps, plan_starts)
     if plan:
         try:
             policy = policy.replace(config=policy.config.replace(**plan))

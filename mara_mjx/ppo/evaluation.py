@@ -26,7 +26,7 @@ import numpy as np
 
 from mara_mjx.deploy.numpy_policy import committed
 from mara_mjx.ppo.config import EvalConfig
-from mara_mjx.ppo.parametrisation import check_plan_period
+from mara_mjx.ppo.parametrisation import check_plan_period, plan_overrides
 from mara_mjx.ppo.policy import Policy, limit_step
 
 # Spec section 7: mean and std over 10 runs, per axis; mm and degrees.
@@ -210,13 +210,8 @@ def deployed_plan(policy: Any, config: EvalConfig) -> Any:
     """`policy` with EvalConfig's plan overrides (plan_steps, plan_starts; -1 leaves the
     checkpoint's): plan_steps=0 turns its restarts off too. ValueError for a policy
     without a config (an exported file's) when one is given, or an invalid pair."""
-    plan = {}
-    if config.plan_steps >= 0:
-        plan["plan_steps"] = config.plan_steps
-        if config.plan_steps == 0:  # no plan, nothing to restart
-            plan["plan_starts"] = 0
-    if config.plan_starts >= 0:
-        plan["plan_starts"] = config.plan_starts
+    steps, starts = (None if v == -1 else v for v in (config.plan_steps, config.plan_starts))
+    plan = plan_overrides(steps, starts)
     return with_deployed(policy, **plan) if plan else policy
 
 

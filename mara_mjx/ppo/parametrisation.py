@@ -341,6 +341,21 @@ def check_starts_override(plan_starts: Any) -> None:
         )
 
 
+def plan_overrides(plan_steps: int | None, plan_starts: int | None) -> dict[str, int]:
+    """The PolicyConfig fields that the plan's overrides (evaluate's, export's) set on a
+    policy (None: as trained; other values as given, for PolicyConfig to check):
+    plan_steps and plan_starts, and plan_starts 0 where plan_steps is 0 and plan_starts
+    is not given (no plan, nothing to restart)."""
+    plan = {}
+    if plan_steps is not None:
+        plan["plan_steps"] = int(plan_steps)
+        if plan_steps == 0:
+            plan["plan_starts"] = 0
+    if plan_starts is not None:
+        plan["plan_starts"] = int(plan_starts)
+    return plan
+
+
 def check_commit_override(commit_rad: Any) -> None:
     """ValueError unless `commit_rad` is an override of PolicyConfig.commit_rad as the
     evaluations take it: -1 (as trained or exported), or a valid commit_rad (0: off)."""

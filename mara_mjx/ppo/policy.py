@@ -74,35 +74,55 @@ def planned_landing(act: Any, obs: jax.Array, steps: int) -> jax.Array:
     Batch-first, the loop outermost with its values in the carry, `act` (a Policy, or a
     function wrapped as a pytree) included, so that jax2onnx exports it."""
     from mara_mjx.envs.base import EnvConfig
-    from mara_mjx.envs.geometry import quat_conj, quat_mul
     from mara_mjx.envs.task_space import joint_ranges, nominal_chain
 
     chain = nominal_chain()
     lo, hi = (np.asarray(x, np.float32) for x in joint_ranges())  # numpy: constants in ONNX
-    orientation = obs.shape[-1] == 16
     dt = np.float32(EnvConfig.control_dt)
     tcp = jnp.vectorize(chain.tcp, signature="(6)->(3),(4)")
     jac = jnp.vectorize(chain.jacobian, signature="(6)->(6,6)")
-
+    orientation = obs.shape[-1] == 16
     q0 = obs[..., :6]
-    pos0, quat0 = tcp(q0)
-    target_pos = pos0 - obs[..., 6:9]
-    # (without an orientation the carried quaternion is the TCP's, unused)
-    target_quat = quat_mul(quat_conj(obs[..., 9:13]), quat0) if orientation else quat0
+    target_pos, target_quat = _target(obs, q0, tcp)
 
     def body(_, carry):
         o, q, target_pos, target_quat, act = carry
         a = jnp.clip(act(o), lo, hi)
         pos, quat = tcp(a)
         v = jnp.einsum("...ij,...j->...i", jac(a)[..., :3, :], (a - q) / dt)
-        parts = [a, pos - target_pos]
-        if orientation:
-            parts.append(quat_mul(quat, quat_conj(target_quat)))
-        return jnp.concatenate([*parts, v], -1), a, target_pos, target_quat, act
+        o = _observation(a, pos, quat, v, target_pos, target_quat, orientation)
+        return o, a, target_pos, target_quat, act
 
     if not isinstance(act, Policy):
         act = jax.tree_util.Partial(act)
     return jax.lax.fori_loop(0, steps, body, (obs, q0, target_pos, target_quat, act))[1]
+
+
+def _target(obs: jax.Array, q0: jax.Array, tcp: Any) -> tuple[jax.Array, jax.Array]:
+    """(position, quaternion) of the target a MARA observation (..., 12 or 16) reports at
+    its own joints q0 (its first 6 entries) on the nominal arm (`tcp`: joints -> the TCP's
+    position, quaternion):
+    p = p_tcp(q) - e, quat = conj(quat_err) (x) quat_tcp(q); without an orientation in
+    the observation, the TCP's quaternion (carried, unused)."""
+    from mara_mjx.envs.geometry import quat_conj, quat_mul
+
+    pos0, quat0 = tcp(q0)
+    orientation = obs.shape[-1] == 16
+    return pos0 - obs[..., 6:9], (
+        quat_mul(quat_conj(obs[..., 9:13]), quat0) if orientation else quat0
+    )
+
+
+def _observation(q, pos, quat, v, target_pos, target_quat, orientation: bool) -> jax.Array:
+    """The MARA observation (q, e, [quat_err,] v) at joints q, where the nominal TCP is at
+    `pos`, `quat` and moves at v, toward the target (`_target`'s), quat_err only with an
+    `orientation`, as the train driver reports it."""
+    from mara_mjx.envs.geometry import quat_conj, quat_mul
+
+    parts = [q, pos - target_pos]
+    if orientation:
+        parts.append(quat_mul(quat, quat_conj(target_quat)))
+    return jnp.concatenate([*parts, v], -1)
 
 
 def start_postures(k: int) -> np.ndarray:
@@ -130,9 +150,7 @@ def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.
     tcp = jnp.vectorize(nominal_chain().tcp, signature="(6)->(3),(4)")
     orientation = obs.shape[-1] == 16
     q0 = obs[..., :6]
-    pos0, quat0 = tcp(q0)
-    target_pos = pos0 - obs[..., 6:9]
-    target_quat = quat_mul(quat_conj(obs[..., 9:13]), quat0) if orientation else quat0
+    target_pos, target_quat = _target(obs, q0, tcp)
 
     def error(q):
         pos, quat = tcp(q)
@@ -143,25 +161,21 @@ def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.
             err = jnp.maximum(err, jnp.degrees(2.0 * jnp.arcsin(half)))
         return err
 
-    def start_obs(start):
-        q = jnp.broadcast_to(jnp.asarray(start), q0.shape)
-        pos, quat = tcp(q)
-        parts = [q, pos - target_pos]
-        if orientation:
-            parts.append(quat_mul(quat, quat_conj(target_quat)))
-        return jnp.concatenate([*parts, jnp.zeros_like(pos)], -1)  # at rest
-
     own = planned_landing(act, obs, steps)
-    best, best_err = own, error(own)
-    found = jnp.zeros(best_err.shape, bool)
+    own_err = error(own)
+    best, best_err = own, own_err
+    found = jnp.zeros(own_err.shape, bool)
+    at_rest = jnp.zeros_like(target_pos)
     for start in start_postures(starts):  # (unrolled: a few, each a fixed constant)
-        land = planned_landing(act, start_obs(start), PLAN_START_STEPS)
+        q = jnp.broadcast_to(jnp.asarray(start), q0.shape)
+        o = _observation(q, *tcp(q), at_rest, target_pos, target_quat, orientation)
+        land = planned_landing(act, o, PLAN_START_STEPS)
         err = error(land)
         better = (err <= PLAN_KEEP_MM) & (~found | (err < best_err))
         best = jnp.where(better[..., None], land, best)
         best_err = jnp.where(better, err, best_err)
         found = found | better
-    keep = error(own) <= PLAN_KEEP_MM
+    keep = own_err <= PLAN_KEEP_MM
     return jnp.where((keep | ~found)[..., None], own, best)
 
 
