@@ -152,7 +152,7 @@ def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.
     q0 = obs[..., :6]
     target_pos, target_quat = _target(obs, q0, tcp)
 
-    def error(q):
+    def error(q, target_pos, target_quat):
         pos, quat = tcp(q)
         err = 1000.0 * jnp.max(jnp.abs(pos - target_pos), axis=-1)
         if orientation:
@@ -162,17 +162,31 @@ def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.
         return err
 
     own = planned_landing(act, obs, steps)
-    own_err = error(own)
+    own_err = error(own, target_pos, target_quat)
+    # every restart in one imagined plan: the K starting postures stacked in front of the
+    # batch and flattened into it, (K x ..., obs), so that the K plans run side by side
+    # (one loop of PLAN_START_STEPS, not K in turn: on a GPU the decision's sequential
+    # depth; in ONNX one Loop)
+    k_shape = (starts,) + q0.shape
+
+    def stacked(x, size):  # (..., size) -> (K x ..., size), the same for every start
+        return jnp.broadcast_to(x, k_shape[:-1] + (size,)).reshape(-1, size)
+
+    q = stacked(
+        jnp.asarray(start_postures(starts)).reshape(k_shape[:1] + (1,) * (q0.ndim - 1) + (6,)), 6
+    )
+    tp, tq = stacked(target_pos, 3), stacked(target_quat, 4)
+    o = _observation(q, *tcp(q), jnp.zeros_like(tp), tp, tq, orientation)
+    lands = planned_landing(act, o, PLAN_START_STEPS)
+    lead = (starts,) if q0.ndim == 1 else (starts, -1) + q0.shape[1:-1]
+    errs = error(lands, tp, tq).reshape(lead)  # (K, ...)
+    lands = lands.reshape(lead + (6,))  # (K, ..., 6)
     best, best_err = own, own_err
     found = jnp.zeros(own_err.shape, bool)
-    at_rest = jnp.zeros_like(target_pos)
-    for start in start_postures(starts):  # (unrolled: a few, each a fixed constant)
-        q = jnp.broadcast_to(jnp.asarray(start), q0.shape)
-        o = _observation(q, *tcp(q), at_rest, target_pos, target_quat, orientation)
-        land = planned_landing(act, o, PLAN_START_STEPS)
-        err = error(land)
+    for i in range(starts):  # the first nearest landing within PLAN_KEEP_MM (elementwise)
+        err = errs[i]
         better = (err <= PLAN_KEEP_MM) & (~found | (err < best_err))
-        best = jnp.where(better[..., None], land, best)
+        best = jnp.where(better[..., None], lands[i], best)
         best_err = jnp.where(better, err, best_err)
         found = found | better
     keep = own_err <= PLAN_KEEP_MM
