@@ -356,7 +356,8 @@ def test_bad_seeds_fail_fast_with_a_clear_message(trained, tmp_path, capsys, com
 def test_the_preset_follows_the_task_unless_one_is_given():
     """A *RandomTarget env trains with the 'random_target' preset (staggered first
     episodes), an *OrientRandomTarget one with 'random_target_orient' (plus the IK
-    residual recipe), the fixed Orient tasks with 'orient_first', MARACollision with
+    residual recipe; MARACollisionOrientRandomTarget with its deployed plan and restarts,
+    'random_target_orient_plan'), the fixed Orient tasks with 'orient_first', MARACollision with
     'staggered_ik_finish' and MARA with 'ik_finish'; --preset and flags win. No compile."""
 
     def ppo(*argv):  # the TrainConfig
@@ -369,6 +370,11 @@ def test_the_preset_follows_the_task_unless_one_is_given():
     orient = fields("--env", "MARACollisionOrientRandomTarget")
     assert orient.stagger_episodes is True and orient.ik_prior == "residual"
     assert orient.ik_gate > 0 and orient.ik_wrap and orient.ik_gate_wrap
+    assert (orient.plan_steps, orient.plan_starts) == (16, 8)  # deployed only
+    plain = ppo("--env", "MARACollisionOrientRandomTarget", "--preset", "random_target_orient")
+    assert ppo("--env", "MARACollisionOrientRandomTarget") == plain.replace(
+        plan_steps=16, plan_starts=8)  # fmt: skip
+    assert fields("--env", "MARAOrientRandomTarget").plan_steps == 0  # not measured there
     assert fields("--env", "MARACollisionRandomTarget").ik_prior == ""
     assert fields("--env", "MARAOrientRandomTarget", "--ik_gate", "0.05").ik_gate == 0.05
     for task in ("MARAOrient", "MARACollisionOrient"):
