@@ -141,8 +141,10 @@ def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.
     nearest to it among those within PLAN_KEEP_MM; else the own landing. The error of a
     landing: the largest of its TCP's position error per axis (mm) and its orientation
     error (deg, the angle of the rotation between the TCP's and the target's; none
-    without an orientation in `obs`), on the nominal arm. Batch-first like
-    planned_landing (jax2onnx exports it)."""
+    without an orientation in `obs`), on the nominal arm. The K restarts run side by
+    side (one loop over K x the batch), and only when some own landing of the batch
+    misses (lax.cond: one arm that reaches skips them; under vmap both branches run).
+    Batch-first like planned_landing (jax2onnx exports it)."""
     from mara_mjx.envs.geometry import quat_conj, quat_mul
     from mara_mjx.envs.task_space import nominal_chain
     from mara_mjx.ppo.parametrisation import PLAN_KEEP_MM, PLAN_START_STEPS
@@ -163,34 +165,46 @@ def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.
 
     own = planned_landing(act, obs, steps)
     own_err = error(own, target_pos, target_quat)
+    keep = own_err <= PLAN_KEEP_MM
     # every restart in one imagined plan: the K starting postures stacked in front of the
     # batch and flattened into it, (K x ..., obs), so that the K plans run side by side
     # (one loop of PLAN_START_STEPS, not K in turn: on a GPU the decision's sequential
     # depth; in ONNX one Loop)
     k_shape = (starts,) + q0.shape
+    lead = (starts,) if q0.ndim == 1 else (starts, -1) + q0.shape[1:-1]
 
     def stacked(x, size):  # (..., size) -> (K x ..., size), the same for every start
         return jnp.broadcast_to(x, k_shape[:-1] + (size,)).reshape(-1, size)
 
-    q = stacked(
-        jnp.asarray(start_postures(starts)).reshape(k_shape[:1] + (1,) * (q0.ndim - 1) + (6,)), 6
-    )
-    tp, tq = stacked(target_pos, 3), stacked(target_quat, 4)
-    o = _observation(q, *tcp(q), jnp.zeros_like(tp), tp, tq, orientation)
-    lands = planned_landing(act, o, PLAN_START_STEPS)
-    lead = (starts,) if q0.ndim == 1 else (starts, -1) + q0.shape[1:-1]
-    errs = error(lands, tp, tq).reshape(lead)  # (K, ...)
-    lands = lands.reshape(lead + (6,))  # (K, ..., 6)
-    best, best_err = own, own_err
-    found = jnp.zeros(own_err.shape, bool)
-    for i in range(starts):  # the first nearest landing within PLAN_KEEP_MM (elementwise)
-        err = errs[i]
-        better = (err <= PLAN_KEEP_MM) & (~found | (err < best_err))
-        best = jnp.where(better[..., None], lands[i], best)
-        best_err = jnp.where(better, err, best_err)
-        found = found | better
-    keep = own_err <= PLAN_KEEP_MM
-    return jnp.where((keep | ~found)[..., None], own, best)
+    def restarted(operands):
+        act, own, own_err, target_pos, target_quat = operands
+        q = stacked(
+            jnp.asarray(start_postures(starts)).reshape(k_shape[:1] + (1,) * (q0.ndim - 1) + (6,)),
+            6,
+        )
+        tp, tq = stacked(target_pos, 3), stacked(target_quat, 4)
+        o = _observation(q, *tcp(q), jnp.zeros_like(tp), tp, tq, orientation)
+        lands = planned_landing(act, o, PLAN_START_STEPS)
+        errs = error(lands, tp, tq).reshape(lead)  # (K, ...)
+        lands = lands.reshape(lead + (6,))  # (K, ..., 6)
+        best, best_err = own, own_err
+        found = jnp.zeros(own_err.shape, bool)
+        for i in range(starts):  # the first nearest landing within PLAN_KEEP_MM
+            err = errs[i]
+            better = (err <= PLAN_KEEP_MM) & (~found | (err < best_err))
+            best = jnp.where(better[..., None], lands[i], best)
+            best_err = jnp.where(better, err, best_err)
+            found = found | better
+        return jnp.where(((own_err <= PLAN_KEEP_MM) | ~found)[..., None], own, best)
+
+    # the restarts only where some own landing of the batch misses: one arm that reaches
+    # skips them (an If in ONNX; under vmap both branches run, the same values)
+    if not isinstance(act, Policy):
+        act = jax.tree_util.Partial(act)
+    return jax.lax.cond(
+        jnp.any(~keep), restarted, lambda operands: operands[1],
+        (act, own, own_err, target_pos, target_quat),
+    )  # fmt: skip
 
 
 def rate_limited(policy: Any, max_step: Any, lower: Any = None, upper: Any = None) -> Any:
