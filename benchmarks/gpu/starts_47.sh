@@ -8,15 +8,18 @@
 #      --commit_rad 0.01`: 1,000 held-out poses (train driver) and 1,000 randomised draws
 #      per speed on the real driver (0.3, 0.5 rad/s); the 16 checkpoints kept; with LOOPS=1
 #      every seed exported with --plan_starts 8 and its .onnx in evaluate's loop at both
-#      speeds (issue 32: every training seed, no pick). A file with 8 restarts is ~20 MB
-#      and took 6.5 minutes to export on this project's 2-core CPU; its loop costs more
-#      than the plan's: budget the loops as their own call (about 30 cells per GPU's
-#      study, 14 at once), after the studies;
+#      speeds (issue 32: every training seed, no pick). Since the restarts run side by
+#      side (NOTES section 48) a file with 8 restarts is ~4 MB and exports in ~30 s on
+#      this project's CPU; one onnxruntime call on 1,000 observations still takes ~2 s
+#      on one thread, so a 1,000-episode cell is long: budget the loops as their own
+#      call (about 30 cells per GPU's study, 14 at once), after the studies;
 #   P  the same without --randomize (the plain recipe), the same judgements and loops;
 #   C  the task's CLI default (`cli`, the random_target_orient preset): 1,000 held-out
 #      poses on the train driver, as trained and with --plan_steps 16 --plan_starts 8
 #      (issue 31's row).
-# Launch with setsid (as anypose_44.sh) and follow with poll.sh:
+# Launch with setsid (as anypose_44.sh) and follow with poll.sh in the NEXT call (a poll
+# in the launching call can read the previous run's DRIVER_DONE before the driver clears
+# studies.log):
 #   bash benchmarks/gpu/starts_47.sh "rec_a 1392 R" "cli_a 1408 C" ["plain_a 1424 P" "rec_b 1440 R"]
 # as many specs as GPUs are used (the first n on n GPUs). Results in /tmp/res/*.tgz.
 cd "$(dirname "$0")/../.."
