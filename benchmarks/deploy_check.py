@@ -5,7 +5,12 @@ same episodes), and compare the reached count and the per-axis means.
 
     python benchmarks/deploy_check.py --out benchmarks/results/deploy/NAME \
         --label "MARACollisionOrient, orient_first" RUN/seed_1000 RUN/seed_1001 ...
-        [--episodes 10] [--seed 1000] [-- EXTRA EVALUATE FLAGS]
+        [--episodes 10] [--seed 1000] [--deployed="--plan_starts 8"] [-- EXTRA EVALUATE FLAGS]
+
+--deployed: deployed-only overrides (`--plan_steps`, `--plan_starts`, `--commit_rad`)
+given to the export and to the checkpoint's evaluation alike, so that both run the
+policy a checkpoint trained with them would deploy (e.g. a preset's `plan_starts` on a
+run trained before the preset set it).
 
 Writes <out>/deploy_check.json (per seed: the two reports' rows, the differences, the
 export's self-check and timings; the commands) and <out>/deploy_check.md (the table).
@@ -20,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -74,6 +80,9 @@ def main() -> None:
     parser.add_argument("--label", required=True)
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--seed", type=int, default=1000)
+    parser.add_argument("--deployed", default="",
+                        help="deployed-only overrides for the export and the checkpoint's "
+                        "evaluation, one string")  # fmt: skip
     parser.add_argument("--overwrite", action="store_true",
                         help="replace deploy_check.* in --out that no check wrote")  # fmt: skip
     argv = sys.argv[1:]
@@ -91,14 +100,15 @@ def main() -> None:
         parser.error(str(e))
     py = [sys.executable, "-m"]
     flags = ["--episodes", str(args.episodes), "--seed", str(args.seed), *extra]
+    deployed = shlex.split(args.deployed)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for folder in args.seeds:
             work = Path(tmp) / folder.name
             work.mkdir()
             onnx = work / "policy.onnx"
-            t_export = run([*py, "mara_mjx.export", str(folder), str(onnx)])
-            t_ckpt = run([*py, "mara_mjx.evaluate", str(folder), *flags,
+            t_export = run([*py, "mara_mjx.export", str(folder), str(onnx), *deployed])
+            t_ckpt = run([*py, "mara_mjx.evaluate", str(folder), *flags, *deployed,
                           "--json", str(work / "ckpt.json")])  # fmt: skip
             t_file = run([*py, "mara_mjx.evaluate", str(onnx), *flags,
                           "--json", str(work / "onnx.json")])  # fmt: skip
@@ -126,8 +136,8 @@ def main() -> None:
         "label": args.label,
         "command": " ".join(["python", "benchmarks/deploy_check.py", *sys.argv[1:]]),
         "per_seed_commands": [
-            "python -m mara_mjx.export SEED policy.onnx",
-            f"python -m mara_mjx.evaluate SEED {' '.join(flags)} --json ckpt.json",
+            " ".join(["python -m mara_mjx.export SEED policy.onnx", *deployed]),
+            " ".join(["python -m mara_mjx.evaluate SEED", *flags, *deployed, "--json ckpt.json"]),
             f"python -m mara_mjx.evaluate policy.onnx {' '.join(flags)} --json onnx.json",
         ],
         "tolerance": {"mm": TOL_MM, "deg": TOL_DEG},
