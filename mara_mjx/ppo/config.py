@@ -353,10 +353,8 @@ PRESETS: dict[str, TrainConfig] = {
 # 99.9% with it). `python -m mara_mjx.train` picks it for a *RandomTarget env when no
 # --preset is given.
 PRESETS["random_target"] = PRESETS["default"].replace(stagger_episodes=True)
-# The same on MARACollision, the train CLI's choice there (issue 11, benchmarks/NOTES.md
-# section 27): 5 seeds, every seed 10/10 at the paper's 5-mm stop, position worst 2.17
-# mm per axis against 4.64 with the default in the same session, no collisions in the
-# hold. Not on MARA: one seed of five held its pose colliding on almost every step.
+# The same on MARACollision (benchmarks/NOTES.md section 27: position worst 2.17 mm per
+# axis against the default's 4.64). Not on MARA: one seed of five held its pose colliding.
 PRESETS["staggered"] = PRESETS["random_target"]
 
 # MARA, the train CLI's choice there (issue 11, benchmarks/NOTES.md sections 27-28): the
@@ -371,16 +369,13 @@ PRESETS["ik_finish"] = PRESETS["default"].replace(ik_finish=0.06)
 # with it: 0.17 mm; no collision).
 PRESETS["staggered_ik_finish"] = PRESETS["staggered"].replace(ik_finish=0.06)
 
-# The random-target tasks with an orientation (issue 12): random_target plus the recipe of
-# benchmarks/NOTES.md sections 23-24. Every default policy pinned joint 4 at its stop
-# (soft joint-limit penalty during training, fading with the curricula); the actor learns
-# a correction to a damped-least-squares IK step toward the observed pose (ik_prior
-# residual), faded out within ~10 cm of the target position and while the step turns the
-# flange joint the long way round past its limit (ik_gate, ik_wrap, ik_gate_wrap), so the
-# IK step's Newton convergence finishes the reach. Measured, 10 seeds of
-# MARACollisionOrientRandomTarget, 1,000 held-out poses each: worst seed 0.43 / 0.31 /
-# 1.21 deg and 0.91 mm mean per axis (this preset without them: 12.6 / 14.4 / 13.4 deg).
-# Its policies need the arm's Jacobian: no .npz export; .onnx traces them (deploy/onnx_graph.py).
+# The random-target tasks with an orientation (issue 12, benchmarks/NOTES.md sections
+# 23-24): random_target, a soft joint-limit penalty during training (every default policy
+# pinned joint 4 at its stop), and an actor that learns a correction to a damped-least-
+# squares IK step toward the observed pose (ik_prior residual), faded out within ~10 cm
+# of the target and while the step turns the flange the long way round past its limit
+# (ik_gate, ik_wrap, ik_gate_wrap), so that the IK step's Newton convergence finishes the
+# reach. Its policies need the arm's Jacobian: .onnx traces them, no .npz export.
 PRESETS["random_target_orient"] = PRESETS["random_target"].replace(
     total_timesteps=120_000_000,
     train_limit_penalty=1.0,
@@ -391,38 +386,24 @@ PRESETS["random_target_orient"] = PRESETS["random_target"].replace(
     ik_gate_wrap=True,
 )
 
-# MARACollisionOrientRandomTarget, the train CLI's choice there (issues 31 and 32,
-# benchmarks/NOTES.md sections 43, 47 and 48): the same training, and a deployed policy
-# that commands the landing of 16 imagined train-driver steps (plan_steps) and, where
-# that landing misses the target by more than 1 mm or 1 deg, the nearest landing within
-# 1 mm of 32 steps imagined from 8 fixed other postures (plan_starts: inverse
-# kinematics' random restarts, the policy as the solver). A seed's misses are fixed
-# points of its policy near the region's corners (the wrist at its stop 20-40 mm short);
-# the restarts reach them from elsewhere. Measured, 16 fresh seeds, 1,000 held-out poses
-# each (benchmarks/results/robustness/mcort_starts/): 6 of 16 seeds below 99% within 1 mm
-# and 1 deg as trained (worst 90.1%, 4.7% of episodes colliding), none with this (worst
-# 99.7%, at most 0.1% colliding). Deployed only: the training is random_target_orient's,
-# bit for bit. MARAOrientRandomTarget keeps random_target_orient (not measured with it).
+# MARACollisionOrientRandomTarget, the train CLI's choice there (benchmarks/NOTES.md
+# sections 47-48): the same training, deploying the plan (plan_steps) and its restarts
+# from 8 other postures where the own landing misses (plan_starts). 16 fresh seeds, 1,000
+# held-out poses each: 6 below 99% within 1 mm and 1 deg as trained, none with them
+# (worst 99.7%). MARAOrientRandomTarget keeps random_target_orient (not measured).
 PRESETS["random_target_orient_plan"] = PRESETS["random_target_orient"].replace(
     plan_steps=16,
     plan_starts=8,
 )
 
-# The fixed-target Orient tasks (issue 11, benchmarks/NOTES.md sections 26-27), the train
-# CLI's choice for MARAOrient and MARACollisionOrient: the IK-residual part of
-# random_target_orient at the default's 5e7 steps, with the IK step turning the tool
-# before the TCP closes in (ik_orient_first), staggered episodes (the synchronised
-# 1,024-step episodes otherwise let the converged policies drift) and two training-only
-# rules (the roll gate, and the standoff's loose form that a stochastic policy can meet).
-# Measured, 10 seeds per task, the paper's episodes and another set: every seed 10/10
-# at the paper's 5-mm stop, orientation worst 1.14 deg (0.02 on the paper's episodes),
-# position worst 0.74 mm, every hold exact (benchmarks/results/paper_table/README.md;
-# .onnx export only). On a position task for_env clears the orientation parts: what is
-# left (the IK residual and stagger) was measured worse than the default on MARACollision.
-# It probes the saved policy from the reset for 100 steps after every jitted call
-# (probe_reach_steps, no effect on training): the one-step metric det_error_mm cannot show
-# the orient-first rule (TCP 1 cm off until the tool is aligned). The deployed policy
-# keeps 5 mm from any contact (collision_guard_mm; benchmarks/NOTES.md section 38).
+# The fixed-target Orient tasks (issue 11, benchmarks/NOTES.md sections 26-27 and 38),
+# the train CLI's choice for MARAOrient and MARACollisionOrient: the IK-residual part of
+# random_target_orient at the default's 5e7 steps, the IK step turning the tool before
+# the TCP closes in (ik_orient_first), staggered episodes (synchronised ones let the
+# converged policies drift), two training-only rules (the roll gate, the standoff's loose
+# form), a probe of the saved policy from the reset after every jitted call (the one-step
+# det_error_mm cannot show the orient-first rule) and a deployed 5-mm collision guard.
+# Measured: README's table (benchmarks/results/robustness/). .onnx export only.
 PRESETS["orient_first"] = PRESETS["random_target_orient"].replace(
     total_timesteps=PRESETS["default"].ppo.total_timesteps,
     ik_orient_first=True,
