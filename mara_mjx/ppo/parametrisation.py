@@ -189,8 +189,10 @@ class PolicyConfig(_ConfigMixin):
     region's edge, and stay there (a fixed point of the policy: the random-target tasks'
     training misses, benchmarks/NOTES.md section 43); from another start the same policy
     takes another branch. This is inverse kinematics' random restarts with the policy as
-    the solver. Each decision costs plan_steps + plan_starts x PLAN_START_STEPS policy
-    calls. Training is unchanged. Needs a MARA arm and the default control period.
+    the solver. A decision whose own landing misses costs plan_steps + plan_starts x
+    PLAN_START_STEPS policy calls (the starts imagined side by side, skipped when every
+    own landing of the batch reaches); measured, 8 starts: benchmarks/NOTES.md section 48
+    (the preset random_target_orient_plan). Training is unchanged. Needs a MARA arm and the default control period.
     Export: .onnx traces it; .npz refuses it. 0: off."""
     commit_rad: float = 0.0
     """Deployed only, rad, > 0: the deployed policy holds each command until the arm has
