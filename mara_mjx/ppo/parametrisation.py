@@ -192,8 +192,8 @@ class PolicyConfig(_ConfigMixin):
     the solver. A decision whose own landing misses costs plan_steps + plan_starts x
     PLAN_START_STEPS policy calls (the starts imagined side by side, skipped when every
     own landing of the batch reaches); measured, 8 starts: benchmarks/NOTES.md section 48
-    (the preset random_target_orient_plan). Training is unchanged. Needs a MARA arm and the default control period.
-    Export: .onnx traces it; .npz refuses it. 0: off."""
+    (the preset random_target_orient_plan). Training is unchanged. Needs a MARA arm and
+    the default control period. Export: .onnx traces it; .npz refuses it. 0: off."""
     commit_rad: float = 0.0
     """Deployed only, rad, > 0: the deployed policy holds each command until the arm has
     carried it out, and only then chooses again: the joint targets sent last are sent
