@@ -1,6 +1,6 @@
 """benchmarks/robustness_merge.py: robustness studies run in parts (one per GPU) written as
 one study, the statistics over seeds recomputed; parts judged differently, a seed judged
-twice and a user's files in --out refused; and deploy_sweep.py --merge."""
+twice and a user's files in --out refused; deploy_sweep.py --merge; robustness_pairs.py."""
 
 from __future__ import annotations
 
@@ -128,3 +128,18 @@ def test_deploy_sweeps_merge_into_one_with_flat_parts(tmp_path, monkeypatch):
             sweep.main(
                 ["--merge", *[str(tmp_path / p) for p in parts], "--out", str(tmp_path / "m")]
             )
+
+
+def test_pairs_prints_each_seed_both_ways_and_names_the_seeds_short(tmp_path, capsys):
+    """benchmarks/robustness_pairs.py: two judgements of the same seeds side by side."""
+    pairs = load_script("robustness_pairs")
+    a = write_part(tmp_path / "a", [1000, 1001], [1.0, 0.98])
+    b = write_part(tmp_path / "b", [1000, 1001], [1.0, 0.995], gz=True)
+    assert pairs.main([str(a), str(b), "--label_b", "restarts"]) == 0
+    out = capsys.readouterr().out
+    assert "| 1001 | 98.0 -> 99.5% | 0.1 -> 0.1% |" in out
+    assert "as trained: 1 of 2 seeds miss a bar (1001)" in out
+    assert "restarts: 0 of 2 seeds miss a bar" in out
+    c = write_part(tmp_path / "c", [1000, 1002], [1.0, 1.0])
+    assert pairs.main([str(a), str(c)]) == 2  # other seeds: refused
+    assert "judge different seeds" in capsys.readouterr().err
