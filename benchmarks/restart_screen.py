@@ -34,10 +34,15 @@ DECISIONS, CLOSE_MM, PATH_POINTS = 8, 2.0, 60
 def screen(folder: Path, ks: list[int], poses: int, eval_seed: int) -> dict:
     from mara_mjx.envs import targets
     from mara_mjx.envs.clearance import clearance
-    from mara_mjx.envs.geometry import quat_conj, quat_mul
     from mara_mjx.envs.task_space import nominal_chain
     from mara_mjx.ppo.parametrisation import PLAN_KEEP_MM, PLAN_START_STEPS
-    from mara_mjx.ppo.policy import _observation, load_policy, planned_landing, start_postures
+    from mara_mjx.ppo.policy import (
+        _observation,
+        landing_error,
+        load_policy,
+        planned_landing,
+        start_postures,
+    )
     from mara_mjx.runtime import runs
 
     policy = load_policy(folder)
@@ -54,10 +59,8 @@ def screen(folder: Path, ks: list[int], poses: int, eval_seed: int) -> dict:
         pos, quat = tcp(q)
         return _observation(q, pos, quat, jnp.zeros_like(pos), tp, tq, True)
 
-    def error(q):  # (..., poses, 6) -> (..., poses): max of mm per axis and deg
-        pos, quat = tcp(q)
-        half = jnp.clip(jnp.linalg.norm(quat_mul(quat, quat_conj(tq))[..., 1:], axis=-1), 0, 1)
-        return jnp.maximum(1000 * jnp.max(jnp.abs(pos - tp), -1), jnp.degrees(2 * jnp.arcsin(half)))
+    def error(q):  # (..., poses, 6) -> (..., poses): the restarts' ranking
+        return landing_error(q, tp, tq, True)
 
     land = jax.jit(lambda q, n: planned_landing(act, obs_at(q), n), static_argnums=1)
     start = time.perf_counter()

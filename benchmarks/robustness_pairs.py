@@ -14,10 +14,11 @@ robustness.json.gz). Prints markdown; refuses studies whose seeds differ.
 from __future__ import annotations
 
 import argparse
-import gzip
-import json
 import sys
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # (a sibling script's reader)
+from robustness_merge import read_part  # noqa: E402
 
 WITHIN, COLLIDING = 0.99, 0.005
 
@@ -25,10 +26,7 @@ WITHIN, COLLIDING = 0.99, 0.005
 def seeds(folder: Path) -> tuple[dict[int, list[float]], list[str]]:
     """({seed: [within_1, colliding, (real within_5mm_2deg, colliding) per speed...]},
     the real driver's speeds)."""
-    path = folder / "robustness.json"
-    opened = open(path) if path.exists() else gzip.open(folder / "robustness.json.gz", "rt")
-    with opened as f:
-        records = json.load(f)["records"]
+    records = read_part(folder)["records"]  # (robustness_merge's reader and its checks)
     out, speeds = {}, []
     for r in records:
         if r["kind"] != "seed":

@@ -134,18 +134,34 @@ def start_postures(k: int) -> np.ndarray:
     return np.random.default_rng(0).uniform(0.8 * lo, 0.8 * hi, size=(k, 6)).astype(np.float32)
 
 
+def landing_error(
+    q: jax.Array, target_pos: jax.Array, target_quat: jax.Array, orientation: bool
+) -> jax.Array:
+    """The error restarted_landing ranks landings by: joints q (..., 6) against a target
+    (position (..., 3) m, quaternion (..., 4)) on the nominal arm, the largest of the
+    TCP's position error per axis (mm) and, with an `orientation`, the angle of the
+    rotation between the TCP's and the target's (deg) -> (...,)."""
+    from mara_mjx.envs.geometry import quat_conj, quat_mul
+    from mara_mjx.envs.task_space import nominal_chain
+
+    pos, quat = jnp.vectorize(nominal_chain().tcp, signature="(6)->(3),(4)")(q)
+    err = 1000.0 * jnp.max(jnp.abs(pos - target_pos), axis=-1)
+    if orientation:
+        rot = quat_mul(quat, quat_conj(target_quat))
+        half = jnp.clip(jnp.linalg.norm(rot[..., 1:], axis=-1), 0.0, 1.0)
+        err = jnp.maximum(err, jnp.degrees(2.0 * jnp.arcsin(half)))
+    return err
+
+
 def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.Array:
     """PolicyConfig.plan_starts: `planned_landing(act, obs, steps)` where it ends within
     PLAN_KEEP_MM of the target read off `obs`; else, of the landings of PLAN_START_STEPS
     imagined steps from each of `start_postures(starts)` toward the same target, the
-    nearest to it among those within PLAN_KEEP_MM; else the own landing. The error of a
-    landing: the largest of its TCP's position error per axis (mm) and its orientation
-    error (deg, the angle of the rotation between the TCP's and the target's; none
-    without an orientation in `obs`), on the nominal arm. The K restarts run side by
+    nearest to it among those within PLAN_KEEP_MM; else the own landing (errors:
+    `landing_error`, with the orientation where `obs` has one). The K restarts run side by
     side (one loop over K x the batch), and only when some own landing of the batch
     misses (lax.cond: one arm that reaches skips them; under vmap both branches run).
     Batch-first like planned_landing (jax2onnx exports it)."""
-    from mara_mjx.envs.geometry import quat_conj, quat_mul
     from mara_mjx.envs.task_space import nominal_chain
     from mara_mjx.ppo.parametrisation import PLAN_KEEP_MM, PLAN_START_STEPS
 
@@ -154,14 +170,8 @@ def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.
     q0 = obs[..., :6]
     target_pos, target_quat = _target(obs, q0, tcp)
 
-    def error(q, target_pos, target_quat):
-        pos, quat = tcp(q)
-        err = 1000.0 * jnp.max(jnp.abs(pos - target_pos), axis=-1)
-        if orientation:
-            rot = quat_mul(quat, quat_conj(target_quat))
-            half = jnp.clip(jnp.linalg.norm(rot[..., 1:], axis=-1), 0.0, 1.0)
-            err = jnp.maximum(err, jnp.degrees(2.0 * jnp.arcsin(half)))
-        return err
+    def error(q, target_pos, target_quat):  # (..., 6) -> (...,)
+        return landing_error(q, target_pos, target_quat, orientation)
 
     own = planned_landing(act, obs, steps)
     own_err = error(own, target_pos, target_quat)
