@@ -75,7 +75,7 @@ export_all() {  # RUN OUT SEEDS...: each seed of RUN exported to OUT/policy_S.on
   done
   [ ${#pids[@]} -gt 0 ] && wait "${pids[@]}"
   echo "export $(basename $out) DONE $(ls $out/*.onnx | wc -l)" >> /tmp/res/studies.log
-  # (EXPORT_ONNX_TGZ=0: the logs only; a file with plan_starts 8 is ~20 MB, too many to bring back)
+  # (EXPORT_ONNX_TGZ=0: the logs only, where the files are too many to bring back)
   tar czf /tmp/res/$(basename $out).tgz.part -C /tmp/res $( [ "${EXPORT_ONNX_TGZ:-1}" = 0 ] && echo --exclude='*.onnx') $(basename $out) && mv /tmp/res/$(basename $out).tgz.part /tmp/res/$(basename $out).tgz
 }
 loops() {  # NAME LABEL P: every file of /tmp/res/onnx_NAME at both speeds, randomised
