@@ -4,7 +4,8 @@ that reaches is commanded. Checked with an IK solver as the policy (a damped
 least-squares step, which reaches from most postures): the own landing is kept where it
 reaches, a restart's is taken only where it reaches, more targets end reached; the
 options' bad values refused; the evaluation's and export's overrides (the ONNX trace of
-a policy with a restart: tests/test_plan.py)."""
+a policy with a restart: tests/test_plan.py). A restart is taken only where the servos'
+path to it keeps PLAN_CLEAR_MM from every contact, and of those the shortest."""
 
 from __future__ import annotations
 
@@ -15,13 +16,22 @@ import pytest
 from test_export_plots import make_run
 
 import mara_mjx
+from mara_mjx.envs.clearance import clearance
 from mara_mjx.envs.geometry import quat_conj, quat_mul
 from mara_mjx.envs.task_space import nominal_chain, pose_step
-from mara_mjx.ppo import PolicyConfig, make_policy
+from mara_mjx.ppo import PolicyConfig, make_policy, parametrisation
 from mara_mjx.ppo.config import EvalConfig
 from mara_mjx.ppo.evaluation import with_deployed
-from mara_mjx.ppo.parametrisation import PLAN_KEEP_MM
-from mara_mjx.ppo.policy import planned_landing, restarted_landing, start_postures
+from mara_mjx.ppo.parametrisation import PLAN_KEEP_MM, PLAN_PATH_POINTS, PLAN_START_STEPS
+from mara_mjx.ppo.policy import (
+    _observation,
+    _target,
+    landing_error,
+    path_clearance,
+    planned_landing,
+    restarted_landing,
+    start_postures,
+)
 
 IK = {"ik_prior": "residual", "ik_gate": 0.1}
 
@@ -66,6 +76,54 @@ def test_restarts_take_a_reaching_landing_only_where_the_own_one_misses():
     assert (got_err[moved] <= PLAN_KEEP_MM + 1e-3).all()  # only a landing that reaches
     np.testing.assert_array_equal(got[~moved], own[~moved])  # else the own one
     np.testing.assert_array_equal(start_postures(8)[:4], start_postures(4))  # a fixed prefix
+
+
+def test_the_servos_path_is_checked_not_only_its_ends():
+    q0 = jnp.zeros(6)
+    q1 = jnp.array([1.34, -0.65, 1.49, -2.51, 0.54, -1.0])  # both ends clear of contacts
+    ends = np.asarray(clearance(jnp.stack([q0, q1])))
+    line = jnp.linspace(0.0, 1.0, 65)[:, None] * q1  # the straight path: clear too
+    got = jax.jit(path_clearance, static_argnums=2)(jnp.stack([q0, q0]), jnp.stack([q0, q1]), 64)
+    assert (ends > 0.04).all() and float(jnp.min(clearance(line))) > 0.04
+    # every joint at the same speed: the smaller moves end while joint 4 still turns, and
+    # the arm passes through a contact on the way
+    assert float(got[1]) < 0.0
+    assert float(got[0]) == pytest.approx(float(ends[0]))  # not moving: where it stands
+
+
+def test_restarts_take_the_shortest_clear_landing(monkeypatch):
+    # a margin of 50 mm (2 by default): from the reset posture (82 mm clear) some reaching
+    # restarts' paths come closer than that, and must be passed over
+    monkeypatch.setattr(parametrisation, "PLAN_CLEAR_MM", 50.0)
+    env = mara_mjx.make("MARAOrientRandomTarget")
+    obs = jax.vmap(env.reset)(jax.random.split(jax.random.key(3), 48)).obs
+    tcp = jnp.vectorize(nominal_chain().tcp, signature="(6)->(3),(4)")
+
+    @jax.jit
+    def landings(obs):  # every start's landing, its error and path clearance; the rule's choice
+        q0 = obs[:, :6]
+        tp, tq = _target(obs, q0, tcp)
+
+        def one(s):
+            q = jnp.broadcast_to(s, q0.shape)
+            o = _observation(q, *tcp(q), 0 * tp, tp, tq, True)
+            land = planned_landing(ik, o, PLAN_START_STEPS)
+            path = path_clearance(q0, land, PLAN_PATH_POINTS)
+            return land, landing_error(land, tp, tq, True), path
+
+        lands, errs, paths = jax.lax.map(one, jnp.asarray(start_postures(4)))
+        rule = restarted_landing(ik, obs, 1, 4)
+        return lands, errs, paths, clearance(q0), planned_landing(ik, obs, 1), rule
+
+    lands, errs, paths, here, own, got = (np.asarray(x) for x in landings(obs))
+    reach, clear = errs <= PLAN_KEEP_MM, paths >= np.minimum(0.05, here)
+    assert (reach & ~clear).sum() >= 5 and (reach & clear).sum() >= 24  # both kinds occur
+    spans = np.abs(lands - np.asarray(obs)[:, :6]).max(-1)  # (4, 48): the largest joint move
+    want_i = np.where(reach & clear, spans, np.inf).argmin(0)
+    want = np.where((reach & clear).any(0)[:, None], lands[want_i, np.arange(48)], own)
+    np.testing.assert_allclose(got, want, atol=1e-5)
+    nearest = np.where(reach, errs, np.inf).argmin(0)  # the choice without the check
+    assert ((reach & clear).any(0) & ~(reach & clear)[nearest, np.arange(48)]).any()
 
 
 def test_bad_plan_starts_are_refused_with_the_valid_range():

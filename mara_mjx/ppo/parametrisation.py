@@ -40,6 +40,15 @@ benchmarks/NOTES.md section 47)."""
 PLAN_KEEP_MM = 1.0
 """PolicyConfig.plan_starts keeps the policy's own landing when it is within this (mm on
 every position axis, deg of orientation), and takes another start's only when that one is."""
+PLAN_CLEAR_MM = 2.0
+"""PolicyConfig.plan_starts takes another start's landing only where the nominal arm keeps
+this clearance (mm, to every contact pair the env checks; or the clearance it has now,
+where that is less) at the landing and along the servos' path to it (every joint at the
+same speed), checked at PLAN_PATH_POINTS points: a restart can converge on a branch folded
+back onto the arm, or one whose path sweeps the gripper through the base (measured,
+benchmarks/NOTES.md section 48)."""
+PLAN_PATH_POINTS = 16
+"""Points of the servos' path at which PLAN_CLEAR_MM is checked (the landing the last)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -183,8 +192,10 @@ class PolicyConfig(_ConfigMixin):
     deg), the policy also imagines PLAN_START_STEPS train-driver steps toward the same
     target from each of this many other starting postures (fixed, the same for every
     decision: uniform within 0.8 x the joint ranges, numpy's default_rng(0), so the first
-    K of a larger set are the K of a smaller one), and commands the landing nearest the
-    target among those within PLAN_KEEP_MM; where none is, its own. A trained policy can
+    K of a larger set are the K of a smaller one), and commands, of the landings within
+    PLAN_KEEP_MM that keep PLAN_CLEAR_MM from every contact on the servos' path to them,
+    the one with the shortest path (the smallest largest joint move); where none is, its
+    own. A trained policy can
     lead the arm onto a branch where the wrist stops at its limit short of a pose near the
     region's edge, and stay there (a fixed point of the policy: the random-target tasks'
     training misses, benchmarks/NOTES.md section 43); from another start the same policy
