@@ -97,7 +97,7 @@ def test_sections_hold_every_field_once_and_ppo_config_is_the_algorithm():
 ADDED_SINCE_SPLIT = {
     "collision_guard_mm": (0.0, {"orient_first": 5.0}),
     "plan_steps": (0, {"random_target_orient_plan": 16}),
-    "plan_starts": (0, {"random_target_orient_plan": 8}),
+    "plan_starts": (0, {"random_target_orient_plan": 16}),
     "commit_rad": (0.0, {}),
     "train_clearance_penalty": (0.0, {}),
     "train_clearance_mm": (10.0, {}),

@@ -370,7 +370,7 @@ def test_the_preset_follows_the_task_unless_one_is_given():
     orient = fields("--env", "MARACollisionOrientRandomTarget")
     assert orient.stagger_episodes is True and orient.ik_prior == "residual"
     assert orient.ik_gate > 0 and orient.ik_wrap and orient.ik_gate_wrap
-    assert (orient.plan_steps, orient.plan_starts) == (16, 8)  # deployed only
+    assert (orient.plan_steps, orient.plan_starts) == (16, 16)  # deployed only
     plain = ppo("--env", "MARACollisionOrientRandomTarget", "--preset", "random_target_orient")
     assert ppo("--env", "MARACollisionOrientRandomTarget") == plain.replace(
         plan_steps=16, plan_starts=8)  # fmt: skip
