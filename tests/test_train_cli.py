@@ -373,7 +373,7 @@ def test_the_preset_follows_the_task_unless_one_is_given():
     assert (orient.plan_steps, orient.plan_starts) == (16, 16)  # deployed only
     plain = ppo("--env", "MARACollisionOrientRandomTarget", "--preset", "random_target_orient")
     assert ppo("--env", "MARACollisionOrientRandomTarget") == plain.replace(
-        plan_steps=16, plan_starts=8)  # fmt: skip
+        plan_steps=16, plan_starts=16)  # fmt: skip
     assert fields("--env", "MARAOrientRandomTarget").plan_steps == 0  # not measured there
     assert fields("--env", "MARACollisionRandomTarget").ik_prior == ""
     assert fields("--env", "MARAOrientRandomTarget", "--ik_gate", "0.05").ik_gate == 0.05
