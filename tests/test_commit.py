@@ -89,6 +89,9 @@ def test_evaluate_holds_commands_as_the_runner_does(orient):
         for rule in (0.01, 0.0):
             runner = PolicyRunner.load(path)
             runner.commit_rad = rule
+            rows = []  # the observations the file was run on, per step
+            act = runner._policy
+            runner._policy = lambda obs, act=act, rows=rows: rows.append(len(obs)) or act(obs)
             state = env.reset(keys[i], params)
             held = 0
             for _ in range(horizon):
@@ -101,5 +104,8 @@ def test_evaluate_holds_commands_as_the_runner_does(orient):
             ends.append(1e3 * np.abs(np.asarray(state.metrics["position_error"])))
             if rule:
                 assert held >= 4, "no command was held"
+                assert sum(rows) <= horizon - held  # a held command runs no policy
+            else:
+                assert sum(rows) == horizon
         np.testing.assert_allclose(ends[0], result.position_error_mm[i], atol=1e-2)
         assert np.abs(ends[1] - ends[0]).max() > 0.1

@@ -73,9 +73,17 @@ def committed(
     and still moves (some joint moved more than COMMIT_STALL_RAD since `q_previous`);
     otherwise `new`, clipped to [lower, upper]. Start an episode with held = q_previous =
     q (arrived: the first targets are the policy's)."""
-    arrived = xp.max(xp.abs(q - held), axis=-1, keepdims=True) <= tol
-    stopped = xp.max(xp.abs(q - q_previous), axis=-1, keepdims=True) <= COMMIT_STALL_RAD
-    return xp.where(arrived | stopped, xp.clip(new, lower, upper), held)
+    choose = deciding(q, held, q_previous, tol, xp)[..., None]
+    return xp.where(choose, xp.clip(new, lower, upper), held)
+
+
+def deciding(q: Any, held: Any, q_previous: Any, tol: float, xp: Any = np) -> Any:
+    """(..., 6) -> (...,) bool: where `committed` sends the policy's new targets (the arm
+    arrived within `tol` of `held`, or stopped); elsewhere the new targets are not used, so
+    a runner need not compute them there."""
+    arrived = xp.max(xp.abs(q - held), axis=-1) <= tol
+    stopped = xp.max(xp.abs(q - q_previous), axis=-1) <= COMMIT_STALL_RAD
+    return arrived | stopped
 
 
 class ExportError(ValueError):

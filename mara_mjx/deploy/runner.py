@@ -28,7 +28,8 @@ limits, for the arm to reach by the next call. The runner keeps each arm's previ
 positions and targets (the batch size is fixed from the first step after `reset()`).
 An export with commit_rad > 0 (PolicyConfig.commit_rad) sends the previous targets again
 until the arm is within commit_rad of them on every joint or has stopped, and only then
-the policy's new ones (numpy_policy.committed, the evaluation loop's rule).
+the policy's new ones (numpy_policy.committed, the evaluation loop's rule); the policy is
+not run for an arm while its command is held, so only the steps that choose pay for it.
 
 The observation is built exactly as the env builds it (mara_mjx/envs/mara.py), from the
 export's `observation_layout`:
@@ -195,18 +196,28 @@ class PolicyRunner:
         out."""
         q, target_pos, target_quat, single = self._inputs(joint_positions, target_pos, target_quat)
         obs = self._observe(q, target_pos, target_quat)
-        action = self._policy(obs)
-        if not np.all(np.isfinite(action)):
-            raise RunnerError("the policy returned non-finite joint targets; not sent")
-        action = np.clip(action, self.joint_lower, self.joint_upper)
         if self.commit_rad > 0.0:
             held = q if self._held is None else self._held
             previous = q if self._previous is None else self._previous
-            action = numpy_policy.committed(
-                q, action, held, previous, self.commit_rad, self.joint_lower, self.joint_upper
-            )
+            # the policy runs only for the arms whose new targets are sent: while an arm
+            # carries out a held command it costs nothing (numpy_policy.committed's rule;
+            # a plan's restarts can take longer than the control period)
+            decide = numpy_policy.deciding(q, held, previous, self.commit_rad)
+            action = held.copy()
+            if decide.any():
+                action[decide] = self._act(obs[decide])
+        else:
+            action = self._act(obs)
         self._previous, self._held = q, action
         return action[0] if single else action
+
+    def _act(self, obs: np.ndarray) -> np.ndarray:
+        """The policy's joint targets for observations (n, obs_size), clipped to the joint
+        limits; RunnerError where any is not finite."""
+        action = self._policy(obs)
+        if not np.all(np.isfinite(action)):
+            raise RunnerError("the policy returned non-finite joint targets; not sent")
+        return np.clip(action, self.joint_lower, self.joint_upper)
 
     # -------------------------------------------------------------- internals
     def _inputs(
