@@ -182,10 +182,10 @@ def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.
     from every contact (or the clearance the arm has now, where that is less;
     `path_clearance` at PLAN_PATH_POINTS points), the one with the shortest path (the
     smallest largest joint move); else the own landing (errors: `landing_error`, with the
-    orientation where `obs` has one). The K restarts
-    run side by side (one loop over K x the batch), and only when some own landing of the
-    batch misses (lax.cond: one arm that reaches skips them; under vmap both branches
-    run). Batch-first like planned_landing (jax2onnx exports it)."""
+    orientation where `obs` has one). The K restarts run side by side (one loop over K x
+    the batch), and only when some own landing of the batch misses (lax.cond: one arm
+    that reaches skips them; under vmap both branches run). Batch-first like
+    planned_landing (jax2onnx exports it)."""
     from mara_mjx.envs.clearance import clearance
     from mara_mjx.envs.task_space import nominal_chain
     from mara_mjx.ppo.parametrisation import (
@@ -230,7 +230,8 @@ def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.
         # clearance the arm has now, where that is less) from every contact
         need = jnp.minimum(np.float32(PLAN_CLEAR_MM / 1000.0), clearance(q0))
         lands = lands.reshape(lead + (6,))  # (K, ..., 6)
-        clear = path_clearance(q0 + 0 * lands, lands, PLAN_PATH_POINTS) >= need
+        here = q0 + 0 * lands  # (q0 in every start's row: a broadcast jax2onnx traces)
+        clear = path_clearance(here, lands, PLAN_PATH_POINTS) >= need
         # of those, the shortest servos' path (the largest joint move): landings within
         # PLAN_KEEP_MM are all on the target, and ranking them by their error would be
         # decided by rounding (benchmarks/NOTES.md section 49)
