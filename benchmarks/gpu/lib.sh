@@ -10,6 +10,8 @@
 #   mcort NAME RECIPE FLAGS...: one MARACollisionOrientRandomTarget robustness study (real
 #     driver without the rate limit, evaluation seed 1000) into /tmp/res/NAME, packed;
 #   pack NAME: /tmp/res/NAME and NAME.log into /tmp/res/NAME.tgz (whole or not at all);
+#   judged NAME WORK RECIPE FLAGS...: one MARACollisionOrientRandomTarget study of 16 seeds
+#     on the training in WORK (starts_47.sh, starts_49.sh), packed;
 #   picks_of NAME: the judged seeds of /tmp/res/NAME's study; export_all RUN OUT SEEDS...:
 #     each seed exported to OUT/policy_S.onnx (8 at a time; EXPORT_FLAGS, if set, added);
 #     loops NAME LABEL P: every file of /tmp/res/onnx_NAME in evaluate's loop at 0.3 and
@@ -49,6 +51,17 @@ mcort() {
     --tasks MARACollisionOrientRandomTarget --recipes "$recipe" \
     --real_driver --rate_limit false "$@" --out /tmp/res/$n --work_dir /tmp/work/$n \
     > /tmp/res/$n.log 2>&1
+  echo "$n DONE $?" >> /tmp/res/studies.log
+  pack $n
+}
+judged() {  # NAME WORK RECIPE FLAGS...: one MARACollisionOrientRandomTarget study of 16 seeds
+  # into /tmp/res/NAME on the training in WORK (a second study with the same WORK and train
+  # command reuses the first one's runs), packed
+  local n=$1 work=$2 recipe=$3
+  shift 3
+  python -m mara_mjx.benchmark robustness --eval_seed 1000 --seeds 16 \
+    --tasks MARACollisionOrientRandomTarget --recipes "$recipe" "$@" \
+    --out /tmp/res/$n --work_dir $work > /tmp/res/$n.log 2>&1
   echo "$n DONE $?" >> /tmp/res/studies.log
   pack $n
 }

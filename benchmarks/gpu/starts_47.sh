@@ -29,15 +29,6 @@ cd "$(dirname "$0")/../.."
 rm -f /tmp/res/studies.log /tmp/res/sent
 R="cli --randomize --train_clearance_penalty 1 --plan_steps 16 --commit_rad 0.01"
 P="cli --train_clearance_penalty 1 --plan_steps 16 --commit_rad 0.01"
-judged() {  # NAME WORK RECIPE FLAGS...: one study into /tmp/res/NAME on the training in WORK
-  local n=$1 work=$2 recipe=$3
-  shift 3
-  python -m mara_mjx.benchmark robustness --eval_seed 1000 --seeds 16 \
-    --tasks MARACollisionOrientRandomTarget --recipes "$recipe" "$@" \
-    --out /tmp/res/$n --work_dir $work > /tmp/res/$n.log 2>&1
-  echo "$n DONE $?" >> /tmp/res/studies.log
-  pack $n
-}
 one() {  # NAME OFFSET KIND
   local n=$1 offset=$2 kind=$3 recipe real run
   case $kind in
