@@ -49,6 +49,10 @@ back onto the arm, or one whose path sweeps the gripper through the base (measur
 benchmarks/NOTES.md section 48)."""
 PLAN_PATH_POINTS = 16
 """Points of the servos' path at which PLAN_CLEAR_MM is checked (the landing the last)."""
+PLAN_RESTART_GROUP = 32
+"""PolicyConfig.plan_starts restarts the rows of a batch whose own landing misses this
+many at a time (policy.restarted_landing): the cost of a decision follows the rows that
+miss, not the batch."""
 
 
 @dataclasses.dataclass(frozen=True)

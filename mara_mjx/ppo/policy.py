@@ -182,10 +182,63 @@ def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.
     from every contact (or the clearance the arm has now, where that is less;
     `path_clearance` at PLAN_PATH_POINTS points), the one with the shortest path (the
     smallest largest joint move); else the own landing (errors: `landing_error`, with the
-    orientation where `obs` has one). The K restarts run side by side (one loop over K x
-    the batch), and only when some own landing of the batch misses (lax.cond: one arm
-    that reaches skips them; under vmap both branches run). Batch-first like
-    planned_landing (jax2onnx exports it)."""
+    orientation where `obs` has one).
+
+    Only the rows whose own landing misses are restarted, PLAN_RESTART_GROUP of them at a
+    time (fewer where the batch is smaller), in a while loop that ends when none is left
+    (none: no iteration): a group's rows are gathered and the choices put back by one-hot
+    products, exact, with static shapes, so that a batch of 1,000 arms with one missing
+    costs one group, not 1,000 restarts. Each group's K restarts run side by side (one
+    imagined loop over K x the group). Batch-first like planned_landing (jax2onnx exports
+    it: a Loop whose trip count is the number of groups)."""
+    from mara_mjx.envs.task_space import nominal_chain
+    from mara_mjx.ppo.parametrisation import PLAN_KEEP_MM, PLAN_RESTART_GROUP
+
+    tcp = jnp.vectorize(nominal_chain().tcp, signature="(6)->(3),(4)")
+    orientation = obs.shape[-1] == 16
+    size = obs.shape[-1]
+    flat = obs.reshape(-1, size)  # (B, obs): leading axes flattened
+    q0 = flat[:, :6]
+    target_pos, target_quat = _target(flat, q0, tcp)
+    own = planned_landing(act, flat, steps)
+    own_err = landing_error(own, target_pos, target_quat, orientation)
+    batch = flat.shape[0]
+    group = min(PLAN_RESTART_GROUP, batch) if isinstance(batch, int) else PLAN_RESTART_GROUP
+    # what a group needs of its rows, gathered in one product (non-finite entries zeroed:
+    # 0 x NaN would spread a diverged row into every group)
+    rows = jnp.concatenate([flat, own, own_err[:, None]], axis=1)
+    rows = jnp.where(jnp.isfinite(rows), rows, 0.0)
+    if not isinstance(act, Policy):
+        act = jax.tree_util.Partial(act)
+
+    def body(carry):
+        best, todo, rows, act = carry
+        # the first `group` rows still to do: row r is the slot-th, slot = its rank
+        slot = jnp.cumsum(todo.astype(jnp.int32)) - 1
+        pick = todo[None, :] & (slot[None, :] == jnp.arange(group)[:, None])  # (group, B)
+        pick = pick.astype(rows.dtype)
+        valid = jnp.any(pick > 0, axis=1)
+        mine = pick @ rows  # (group, obs + 7): each slot's row (zeros where none is left)
+        o, g_own, g_err = mine[:, :size], mine[:, size : size + 6], mine[:, size + 6]
+        choice = _restart_choice(act, o, g_own, g_err, starts, orientation)
+        choice = jnp.where(valid[:, None] & jnp.isfinite(choice), choice, g_own)
+        hit = jnp.any(pick > 0, axis=0)
+        best = jnp.where(hit[:, None], pick.T @ choice, best)
+        return best, todo & ~hit, rows, act
+
+    todo = own_err > PLAN_KEEP_MM  # (NaN: not restarted)
+    best = jax.lax.while_loop(lambda c: jnp.any(c[1]), body, (own, todo, rows, act))[0]
+    return best.reshape(obs.shape[:-1] + (6,))
+
+
+def _restart_choice(
+    act: Any, obs: jax.Array, own: jax.Array, own_err: jax.Array, starts: int, orientation: bool
+) -> jax.Array:
+    """restarted_landing's choice for a group of rows (G, obs) whose own landings `own`
+    (G, 6) miss by `own_err` (G,): the K = `starts` restarts' landings imagined side by
+    side (the K starting postures stacked in front of the group and flattened into it,
+    one loop of PLAN_START_STEPS: on a GPU the decision's sequential depth; in ONNX one
+    Loop), the shortest clear one within PLAN_KEEP_MM, else `own` -> (G, 6)."""
     from mara_mjx.envs.clearance import clearance
     from mara_mjx.envs.task_space import nominal_chain
     from mara_mjx.ppo.parametrisation import (
@@ -196,63 +249,37 @@ def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.
     )
 
     tcp = jnp.vectorize(nominal_chain().tcp, signature="(6)->(3),(4)")
-    orientation = obs.shape[-1] == 16
-    q0 = obs[..., :6]
+    q0 = obs[:, :6]
     target_pos, target_quat = _target(obs, q0, tcp)
+    g = q0.shape[0]
 
-    def error(q, target_pos, target_quat):  # (..., 6) -> (...,)
-        return landing_error(q, target_pos, target_quat, orientation)
+    def stacked(x):  # (G, n) -> (K x G, n), the same for every start
+        return jnp.broadcast_to(x, (starts,) + x.shape).reshape(starts * g, x.shape[-1])
 
-    own = planned_landing(act, obs, steps)
-    own_err = error(own, target_pos, target_quat)
-    keep = own_err <= PLAN_KEEP_MM
-    # every restart in one imagined plan: the K starting postures stacked in front of the
-    # batch and flattened into it, (K x ..., obs), so that the K plans run side by side
-    # (one loop of PLAN_START_STEPS, not K in turn: on a GPU the decision's sequential
-    # depth; in ONNX one Loop)
-    k_shape = (starts,) + q0.shape
-    lead = (starts,) if q0.ndim == 1 else (starts, -1) + q0.shape[1:-1]
-
-    def stacked(x, size):  # (..., size) -> (K x ..., size), the same for every start
-        return jnp.broadcast_to(x, k_shape[:-1] + (size,)).reshape(-1, size)
-
-    def restarted(operands):
-        act, q0, own, own_err, target_pos, target_quat = operands
-        q = stacked(
-            jnp.asarray(start_postures(starts)).reshape(k_shape[:1] + (1,) * (q0.ndim - 1) + (6,)),
-            6,
-        )
-        tp, tq = stacked(target_pos, 3), stacked(target_quat, 4)
-        o = _observation(q, *tcp(q), jnp.zeros_like(tp), tp, tq, orientation)
-        lands = planned_landing(act, o, PLAN_START_STEPS)
-        errs = error(lands, tp, tq).reshape(lead)  # (K, ...)
-        # clear: the servos' path from here to the landing keeps PLAN_CLEAR_MM (or the
-        # clearance the arm has now, where that is less) from every contact
-        need = jnp.minimum(np.float32(PLAN_CLEAR_MM / 1000.0), clearance(q0))
-        lands = lands.reshape(lead + (6,))  # (K, ..., 6)
-        here = q0 + 0 * lands  # (q0 in every start's row: a broadcast jax2onnx traces)
-        clear = path_clearance(here, lands, PLAN_PATH_POINTS) >= need
-        # of those, the shortest servos' path (the largest joint move): landings within
-        # PLAN_KEEP_MM are all on the target, and ranking them by their error would be
-        # decided by rounding (benchmarks/NOTES.md section 49)
-        spans = jnp.max(jnp.abs(lands - q0), axis=-1)  # (K, ...)
-        best, best_span = own, jnp.zeros(own_err.shape, own.dtype)
-        found = jnp.zeros(own_err.shape, bool)
-        for i in range(starts):  # the first shortest clear landing within PLAN_KEEP_MM
-            better = (errs[i] <= PLAN_KEEP_MM) & clear[i] & (~found | (spans[i] < best_span))
-            best = jnp.where(better[..., None], lands[i], best)
-            best_span = jnp.where(better, spans[i], best_span)
-            found = found | better
-        return jnp.where(((own_err <= PLAN_KEEP_MM) | ~found)[..., None], own, best)
-
-    # the restarts only where some own landing of the batch misses: one arm that reaches
-    # skips them (an If in ONNX; under vmap both branches run, the same values)
-    if not isinstance(act, Policy):
-        act = jax.tree_util.Partial(act)
-    return jax.lax.cond(
-        jnp.any(~keep), restarted, lambda operands: operands[2],
-        (act, q0, own, own_err, target_pos, target_quat),
-    )  # fmt: skip
+    q = jnp.broadcast_to(jnp.asarray(start_postures(starts))[:, None, :], (starts, g, 6))
+    q = q.reshape(starts * g, 6)
+    tp, tq = stacked(target_pos), stacked(target_quat)
+    o = _observation(q, *tcp(q), jnp.zeros_like(tp), tp, tq, orientation)
+    lands = planned_landing(act, o, PLAN_START_STEPS)
+    errs = landing_error(lands, tp, tq, orientation).reshape(starts, g)
+    lands = lands.reshape(starts, g, 6)
+    # clear: the servos' path from here to the landing keeps PLAN_CLEAR_MM (or the
+    # clearance the arm has now, where that is less) from every contact
+    need = jnp.minimum(np.float32(PLAN_CLEAR_MM / 1000.0), clearance(q0))
+    here = q0 + 0 * lands  # (q0 in every start's row: a broadcast jax2onnx traces)
+    clear = path_clearance(here, lands, PLAN_PATH_POINTS) >= need
+    # of those, the shortest servos' path (the largest joint move): landings within
+    # PLAN_KEEP_MM are all on the target, and ranking them by their error would be
+    # decided by rounding (benchmarks/NOTES.md section 49)
+    spans = jnp.max(jnp.abs(lands - q0), axis=-1)  # (K, G)
+    best, best_span = own, jnp.zeros(own_err.shape, own.dtype)
+    found = jnp.zeros(own_err.shape, bool)
+    for i in range(starts):  # the first shortest clear landing within PLAN_KEEP_MM
+        better = (errs[i] <= PLAN_KEEP_MM) & clear[i] & (~found | (spans[i] < best_span))
+        best = jnp.where(better[..., None], lands[i], best)
+        best_span = jnp.where(better, spans[i], best_span)
+        found = found | better
+    return jnp.where(((own_err <= PLAN_KEEP_MM) | ~found)[..., None], own, best)
 
 
 def rate_limited(policy: Any, max_step: Any, lower: Any = None, upper: Any = None) -> Any:
