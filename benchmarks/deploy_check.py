@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 
 from mara_mjx.cli.common import UserError
-from mara_mjx.runtime import files, outputs
+from mara_mjx.runtime import files, outputs, runs
 
 OUTPUTS = ("deploy_check.json", "deploy_check.md")
 TOL_MM, TOL_DEG = 0.01, 0.01
@@ -143,6 +143,7 @@ def main() -> None:
         "tolerance": {"mm": TOL_MM, "deg": TOL_DEG},
         "machine": platform.platform(),
         "versions": {"jax": jax.__version__, "onnxruntime": onnxruntime.__version__},
+        "git_commit": runs.git_commit(),
         "seeds": rows,
         "matched": sum(r["match"] for r in rows),
     }

@@ -205,8 +205,8 @@ class PolicyConfig(_ConfigMixin):
     training misses, benchmarks/NOTES.md section 43); from another start the same policy
     takes another branch. This is inverse kinematics' random restarts with the policy as
     the solver. A decision whose own landing misses costs plan_steps + plan_starts x
-    PLAN_START_STEPS policy calls (the starts imagined side by side, skipped when every
-    own landing of the batch reaches); measured, 16 starts: benchmarks/NOTES.md section
+    PLAN_START_STEPS policy calls (the starts imagined side by side, for the rows of a
+    batch that miss only, PLAN_RESTART_GROUP at a time); measured, 16 starts: benchmarks/NOTES.md section
     49 (the preset random_target_orient_plan). Training is unchanged. Needs a MARA arm and
     the default control period. Export: .onnx traces it; .npz refuses it. 0: off."""
     commit_rad: float = 0.0
