@@ -1,8 +1,8 @@
 """One arm's step through an exported .onnx policy, as a robot runs it: onnxruntime on one
 thread, one observation per call, median and 95th percentile over N reset observations of
 the task (targets far) and over the same postures at their target (e = 0, quat_err =
-identity, at rest: where a planned policy's own landing reaches, so the restarts' If is
-skipped), and over the export's self-check observations (`onnx_graph.check_observations`:
+identity, at rest: where a planned policy's own landing reaches, so its restarts' loop
+runs no group), and over the export's self-check observations (`onnx_graph.check_observations`:
 random, spread over the rules' zones; a planned policy's own landing mostly misses there,
 so the restarts run).
 

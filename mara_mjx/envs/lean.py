@@ -201,8 +201,9 @@ def segment_box_distance(a, b, half) -> jax.Array:
     d = b - a
     safe = jnp.where(jnp.abs(d) > 1e-12, d, 1e-12)
     breaks = jnp.concatenate([(half - a) / safe, (-half - a) / safe])
-    # (0 and 1 shaped like a[:1], not a literal array: jax2onnx 0.17 mis-shapes a batched
-    # literal inside an If, where the plan's restarts check their paths; same values)
+    # (0 and 1 shaped like a[:1], not a literal array: jax2onnx 0.17 mis-shaped a batched
+    # literal inside an If, where the plan's restarts then checked their paths; kept for
+    # their Loop; same values)
     ends = [jnp.zeros_like(a[:1]), jnp.ones_like(a[:1])]
     knots = jnp.clip(jnp.concatenate([*ends, breaks]), 0.0, 1.0)
     p = a + knots[:, None] * d
