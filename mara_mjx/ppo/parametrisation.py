@@ -206,9 +206,10 @@ class PolicyConfig(_ConfigMixin):
     takes another branch. This is inverse kinematics' random restarts with the policy as
     the solver. A decision whose own landing misses costs plan_steps + plan_starts x
     PLAN_START_STEPS policy calls (the starts imagined side by side, for the rows of a
-    batch that miss only, PLAN_RESTART_GROUP at a time); measured, 16 starts: benchmarks/NOTES.md section
-    49 (the preset random_target_orient_plan). Training is unchanged. Needs a MARA arm and
-    the default control period. Export: .onnx traces it; .npz refuses it. 0: off."""
+    batch that miss only, PLAN_RESTART_GROUP at a time); measured, 16 starts:
+    benchmarks/NOTES.md section 49 (the preset random_target_orient_plan). Training is
+    unchanged. Needs a MARA arm and the default control period. Export: .onnx traces it;
+    .npz refuses it. 0: off."""
     commit_rad: float = 0.0
     """Deployed only, rad, > 0: the deployed policy holds each command until the arm has
     carried it out, and only then chooses again: the joint targets sent last are sent
