@@ -206,7 +206,7 @@ def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.
     group = min(PLAN_RESTART_GROUP, batch) if isinstance(batch, int) else PLAN_RESTART_GROUP
     # what a group needs of its rows, gathered in one product (non-finite entries zeroed:
     # 0 x NaN would spread a diverged row into every group)
-    rows = jnp.concatenate([flat, own, own_err[:, None]], axis=1)
+    rows = jnp.concatenate([flat, own], axis=1)
     rows = jnp.where(jnp.isfinite(rows), rows, 0.0)
     if not isinstance(act, Policy):
         act = jax.tree_util.Partial(act)
@@ -218,9 +218,9 @@ def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.
         pick = todo[None, :] & (slot[None, :] == jnp.arange(group)[:, None])  # (group, B)
         pick = pick.astype(rows.dtype)
         valid = jnp.any(pick > 0, axis=1)
-        mine = pick @ rows  # (group, obs + 7): each slot's row (zeros where none is left)
-        o, g_own, g_err = mine[:, :size], mine[:, size : size + 6], mine[:, size + 6]
-        choice = _restart_choice(act, o, g_own, g_err, starts, orientation)
+        mine = pick @ rows  # (group, obs + 6): each slot's row (zeros where none is left)
+        o, g_own = mine[:, :size], mine[:, size:]
+        choice = _restart_choice(act, o, g_own, starts, orientation)
         choice = jnp.where(valid[:, None] & jnp.isfinite(choice), choice, g_own)
         hit = jnp.any(pick > 0, axis=0)
         best = jnp.where(hit[:, None], pick.T @ choice, best)
@@ -232,10 +232,10 @@ def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.
 
 
 def _restart_choice(
-    act: Any, obs: jax.Array, own: jax.Array, own_err: jax.Array, starts: int, orientation: bool
+    act: Any, obs: jax.Array, own: jax.Array, starts: int, orientation: bool
 ) -> jax.Array:
     """restarted_landing's choice for a group of rows (G, obs) whose own landings `own`
-    (G, 6) miss by `own_err` (G,): the K = `starts` restarts' landings imagined side by
+    (G, 6) miss: the K = `starts` restarts' landings imagined side by
     side (the K starting postures stacked in front of the group and flattened into it,
     one loop of PLAN_START_STEPS: on a GPU the decision's sequential depth; in ONNX one
     Loop), the shortest clear one within PLAN_KEEP_MM, else `own` -> (G, 6)."""
@@ -272,14 +272,14 @@ def _restart_choice(
     # PLAN_KEEP_MM are all on the target, and ranking them by their error would be
     # decided by rounding (benchmarks/NOTES.md section 49)
     spans = jnp.max(jnp.abs(lands - q0), axis=-1)  # (K, G)
-    best, best_span = own, jnp.zeros(own_err.shape, own.dtype)
-    found = jnp.zeros(own_err.shape, bool)
+    best, best_span = own, jnp.zeros(own.shape[:-1], own.dtype)
+    found = jnp.zeros(own.shape[:-1], bool)
     for i in range(starts):  # the first shortest clear landing within PLAN_KEEP_MM
         better = (errs[i] <= PLAN_KEEP_MM) & clear[i] & (~found | (spans[i] < best_span))
         best = jnp.where(better[..., None], lands[i], best)
         best_span = jnp.where(better, spans[i], best_span)
         found = found | better
-    return jnp.where(((own_err <= PLAN_KEEP_MM) | ~found)[..., None], own, best)
+    return best  # (own where no clear restart reaches)
 
 
 def rate_limited(policy: Any, max_step: Any, lower: Any = None, upper: Any = None) -> Any:
