@@ -4,8 +4,21 @@
 # 16 MB parts: a call brings back at most 8 files and about 64 MB, so what does not fit
 # waits for the next call), and the logs every time; call it again within the machine's
 # idle window until studies.log says DRIVER_DONE. (Section 45 lost a call's worth of
-# files to the 8-file limit when each .tgz went on its own.)
+# files to the 8-file limit when each .tgz went on its own.) Cells of deploy_sweep.py
+# (lib.sh's cells) are packed as they finish (cellpack_*.tgz), so a machine taken back
+# mid-run loses only the running ones.
 end=$(( $(date +%s) + $1 ))
+packcells() {  # the cells finished since the last pack (cells/NAME and its log) as one .tgz
+  [ -d /tmp/res/cells ] || return 0
+  local done=() n
+  for n in $(grep -o '^cell [^ ]* DONE' /tmp/res/studies.log 2>/dev/null | cut -d' ' -f2); do
+    grep -qx "$n" /tmp/res/packed 2>/dev/null || done+=("$n")
+  done
+  [ ${#done[@]} -gt 0 ] || return 0
+  local t=/tmp/res/cellpack_$(date +%s).tgz
+  tar czf "$t.part" -C /tmp/res/cells $(for n in "${done[@]}"; do (cd /tmp/res/cells && ls -d "$n" "$n.log" 2>/dev/null); done) \
+    && mv "$t.part" "$t" && printf '%s\n' "${done[@]}" >> /tmp/res/packed
+}
 send() {  # the finished .tgz not yet sent, up to about 48 MB, as one tar in parts
   local new=() size=0 f s
   for f in $(ls /tmp/res/*.tgz 2>/dev/null | grep -v /ck_) $(ls /tmp/res/ck_*.tgz 2>/dev/null); do
@@ -26,6 +39,7 @@ while :; do
   [ -n "$done" ] && break
   sleep 10
 done
+packcells
 send
 cp /tmp/res/cold.log /tmp/res/studies.log "$OUT/" 2>/dev/null
 tail -n 3 /tmp/res/*.log 2>/dev/null | tail -n 30
