@@ -212,3 +212,48 @@ def test_pick_cli_ranks_the_seeds_on_the_real_driver(seeds_run, cli_env, tmp_pat
     assert mine.read_text() == '{"keep": 1}'
     single = run_module(cli_env, "mara_mjx.pick", str(out / "seed_0"))
     assert single.returncode == 2 and "not the folder of a several-seed run" in single.stderr
+
+
+def test_a_distill_run_learns_each_seed_from_the_same_seed_of_its_teacher(
+    seeds_run, cli_env, tmp_path
+):
+    """--preset distill --teacher RUN --seeds 2: student seed s holds teacher seed s (the
+    tiny two-seed run, MARA's CLI default with its IK finish) in its checkpoints, records
+    the teacher's absolute path, and exports as the learnt network alone (.npz, no IK);
+    a teacher without the student's seeds, of another task, or none are clear errors."""
+    teacher, _ = seeds_run
+    student = tmp_path / "student"
+    quiet = ["--evaluate", "false", "--plots", "false", "--progress", "false"]
+    base = [*SEEDS, "--preset", "distill", *quiet]
+    proc = run_module(
+        cli_env, "mara_mjx.train", *base, "--teacher", str(teacher), "--out", str(student)
+    )
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    for s in (0, 1):
+        arrays, meta = ckpt.load_checkpoint(student / f"seed_{s}" / CKPT2)
+        assert meta["curriculum"]["teacher"] == str(teacher.resolve())
+        assert meta["policy"]["ik_finish"] == 0.0  # the student deploys no IK step
+        own, _ = ckpt.load_checkpoint(teacher / f"seed_{s}" / CKPT2)
+        other, _ = ckpt.load_checkpoint(teacher / f"seed_{1 - s}" / CKPT2)
+        names = [n for n in own if n.startswith("params/params/actor/")]
+        assert names
+        for n in names:
+            np.testing.assert_array_equal(arrays["teacher/" + n], own[n], err_msg=n)
+        assert any(not np.array_equal(arrays["teacher/" + n], other[n]) for n in names)
+    npz = tmp_path / "student.npz"
+    proc = run_module(cli_env, "mara_mjx.export", str(student / "seed_1"), str(npz))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+
+    bad = [
+        (["--teacher", str(teacher), "--seed", "1"], "no seed folder for student seed(s) [2]"),
+        (
+            ["--teacher", str(teacher), "--env", "MARACollision"],
+            "trained on MARA, not MARACollision",
+        ),
+        ([], "give --teacher RUN"),
+    ]
+    for extra, message in bad:
+        proc = run_module(cli_env, "mara_mjx.train", *base, *extra, "--out", str(tmp_path / "x"))
+        assert proc.returncode != 0 and message in proc.stderr, (extra, proc.stderr[-2000:])
+        assert "Traceback" not in proc.stderr
+        assert not (tmp_path / "x").exists()  # nothing written for a refused command

@@ -53,6 +53,7 @@ from mara_mjx.ppo import logger, seed_eval
 from mara_mjx.ppo.divergence import check_finite
 from mara_mjx.ppo.members import make_seed_trainer, take_seed
 from mara_mjx.ppo.policy import make_policy
+from mara_mjx.ppo.teacher import teachers_for_seeds
 from mara_mjx.runtime import files, outputs, runs, sharding
 
 SEEDS_JSON = "seeds.json"
@@ -177,10 +178,16 @@ def train(plan: Any, env: Any, trainer: Any, host: Host) -> int:
     """The train CLI for plan.run.seeds > 1 (trainer built with devices=1)."""
     seeds = tuple(range(plan.config.ppo.seed, plan.config.ppo.seed + plan.run.seeds))
     st = make_seed_trainer(trainer, seeds, devices=sharding.device_count(plan.run.devices))
+    teachers = None  # imitation: seed s's teacher (a resumed run's are in its checkpoints)
+    if trainer.teacher is not None and plan.checkpoint is None:
+        try:
+            teachers = teachers_for_seeds(plan.config.curriculum.teacher, plan.env_name, seeds)
+        except ValueError as e:
+            raise UserError(str(e)) from e
     top = plan.out
     locks = [_claim(top)]
     try:
-        return _train(plan, env, trainer, host, st, seeds, locks)
+        return _train(plan, env, trainer, host, st, seeds, locks, teachers)
     finally:
         for lock in locks:
             lock.release()
@@ -199,7 +206,7 @@ def _claim(top: Path) -> files.FolderLock:
     return lock
 
 
-def _train(plan, env, trainer, host: Host, st, seeds, locks: list) -> int:
+def _train(plan, env, trainer, host: Host, st, seeds, locks: list, teachers=None) -> int:
     """train() in its claimed folder; the seeds' folders' locks are added to `locks`."""
     top = plan.out
     name = None if plan.checkpoint is None else plan.checkpoint.name
@@ -259,6 +266,8 @@ def _train(plan, env, trainer, host: Host, st, seeds, locks: list) -> int:
                 )
             if state is None:
                 state = st.init()
+                if teachers is not None:  # student seed s learns from teacher seed s
+                    state = state.replace(teacher=teachers)
             print(
                 f"{plan.env_name}: {len(seeds)} seeds {seeds[0]}..{seeds[-1]} x "
                 f"{trainer.num_updates} updates of {plan.config.ppo.num_envs} envs x "

@@ -79,6 +79,7 @@ from mara_mjx.ppo.divergence import check_finite
 from mara_mjx.ppo.evaluation import PAPER_RESULTS, evaluate, format_table, make_evaluate
 from mara_mjx.ppo.metrics import num_parameters
 from mara_mjx.ppo.policy import make_policy
+from mara_mjx.ppo.teacher import load_teacher
 from mara_mjx.ppo.train import Trainer, make_train
 from mara_mjx.runtime import distributed, files, runs, sharding
 
@@ -116,7 +117,10 @@ def _main(args: argparse.Namespace) -> int:
         raise UserError(f"cannot build env {plan.env_name}: {e}") from e
     try:  # cheap (nothing is compiled yet): device and batch-divisibility errors first
         devices = 1 if plan.run.seeds > 1 else plan.run.devices  # seeds: see mara_mjx.cli.seeds
-        trainer = make_train(env, plan.config, plan.run.updates_per_call, devices)
+        teacher = None
+        if plan.config.curriculum.teacher:  # imitation: the (first seed's) teacher
+            teacher = load_teacher(plan.config.curriculum.teacher, plan.env_name)
+        trainer = make_train(env, plan.config, plan.run.updates_per_call, devices, teacher)
     except ValueError as e:
         raise UserError(str(e)) from e
     # env-dependent fields resolved (quat_index): saved with every checkpoint, policies read alike

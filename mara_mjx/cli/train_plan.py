@@ -189,6 +189,14 @@ def resolve(args: argparse.Namespace) -> Plan:
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
         out = Path(run.out or f"runs/{args.env}-{stamp}")
         name = args.preset or default_preset(args.env)
+        if name == "distill" and not config.curriculum.teacher:
+            raise UserError(
+                "the distill preset imitates a trained policy: give --teacher RUN (a run of "
+                f"{args.env}, e.g. one `python -m mara_mjx.train --env {args.env}` made; with "
+                "--seeds, one trained with the same --seed and --seeds)"
+            )
+        if config.curriculum.teacher:  # recorded absolute: a resume from elsewhere finds it
+            config = config.replace(teacher=str(Path(config.curriculum.teacher).resolve()))
         return Plan(args.env, env_overrides(args), config, run, evaluation, out, preset=name)
 
     checkpoint, top, group_run = seeds.find_resume(args.resume, given["run"])

@@ -10,7 +10,7 @@
                    each field to its section, `TrainConfig.of(**fields)` builds one so
     PRESETS        {"default", "ik_finish", "paper", "ros2learn", "random_target",
                     "staggered", "staggered_ik_finish", "random_target_orient",
-                    "random_target_orient_plan", "orient_first", "cpu"} -> TrainConfig
+                    "random_target_orient_plan", "orient_first", "cpu", "distill"} -> TrainConfig
     default_preset(env_name) -> the train CLI's preset when none is given
     for_env(config, env) -> the TrainConfig with its env-dependent fields resolved
     RunConfig, EvalConfig (`mara_mjx.ppo.run_config`): the host loop, the evaluation
@@ -410,6 +410,13 @@ PRESETS["orient_first"] = PRESETS["random_target_orient"].replace(
     probe_reach_steps=100,
     collision_guard_mm=5.0,
 )
+
+# The learnt policy alone at the accuracy of the IK policies (issue 31, benchmarks/NOTES.md
+# section 51): the default's plain network (no IK when deployed: .npz or ONNX) trained to
+# imitate a teacher run instead of maximising the reward (`--teacher RUN`, e.g. the task's
+# CLI default; mara_mjx.ppo.teacher), with staggered episodes so that every batch holds
+# reaching and holding states. Needs --teacher.
+PRESETS["distill"] = PRESETS["default"].replace(stagger_episodes=True)
 
 
 def default_preset(env_name: str) -> str:

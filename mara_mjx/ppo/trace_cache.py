@@ -16,12 +16,13 @@ Both paths run the same exported program, so a warm run repeats its cold run bit
 bit, as with the compilation cache alone (tests/test_trace_cache.py also checks it equals
 plain `trainer.run` on the CPU). The key is a hash of what the traced program depends on:
 the resolved PPO config (its seed aside: the seed enters through the state), the env's
-type, task, config, driver settings, MuJoCo model and default params, the batched env,
-the state's shapes and dtypes, the updates per call, the versions of python, jax,
-jaxlib, mujoco, flax, optax and numpy, the backend and device kind, JAX's numeric settings, and
-the source of the installed mara_mjx package (an edited mara_mjx never loads a stale
-program). Something else that changes the program without changing any of these (a
-patched dependency, say) needs the folder deleted or MARA_MJX_TRACE_CACHE=0.
+type, task, config, driver settings, MuJoCo model and default params, the batched env, the
+state's shapes and dtypes, the updates per call, a teacher's config (imitation), the
+versions of python, jax, jaxlib, mujoco, flax, optax and numpy, the backend and device
+kind, JAX's numeric settings, and the source of the installed mara_mjx package (an edited
+mara_mjx never loads a stale program). Something else that changes the program without
+changing any of these (a patched dependency, say) needs the folder deleted or
+MARA_MJX_TRACE_CACHE=0.
 
 A file is not trusted by its name: it carries the full key material (the JSON the key
 hashes) in its header, and a loaded file whose material differs from the run's (a stale
@@ -108,6 +109,12 @@ def key_material(trainer: Any, state: Any) -> str:
         "env": env_fingerprint(env),
         "batched": [getattr(batched, "reset_strategy", None), getattr(batched, "num_envs", None)],
         "updates_per_call": trainer.updates_per_call,
+        "teacher": None
+        if getattr(trainer, "teacher", None) is None
+        else [
+            trainer.teacher.config.to_dict(),  # its deployed rules are traced into the program
+            trainer.teacher.action_size,
+        ],
         "state": [str(treedef), [(tuple(x.shape), str(x.dtype)) for x in leaves]],
     }
     return json.dumps(parts, sort_keys=True, default=str)

@@ -57,6 +57,7 @@ from mara_mjx.ppo.networks import (
     make_network,
     update_stats,
 )
+from mara_mjx.ppo.teacher import imitation_loss, teacher_action
 from mara_mjx.runtime import sharding
 
 
@@ -74,6 +75,10 @@ class RunnerState:
     # the last exploit step, summed over updates; every other leaf then has a leading
     # (K,) member axis. None (no leaf) for a single-member run.
     fitness: Any = None
+    # CurriculumConfig.teacher: the teacher's deployed Policy (never trained; in the state
+    # so that --seeds gives each seed its own and a checkpoint resumes whole). None (no
+    # leaf) without a teacher.
+    teacher: Any = None
 
 
 class Transition(NamedTuple):
@@ -89,6 +94,7 @@ class Transition(NamedTuple):
     episode_return: jax.Array  # (N,) return of the episode that ended here, else 0
     metrics: dict[str, jax.Array]  # env metrics of the step
     ik: Any = None  # networks.ik_inputs of obs (ik_prior), computed once per sample
+    teacher_action: Any = None  # (N, A) rad, the teacher's action at obs (imitation)
 
 
 class Batch(NamedTuple):
@@ -101,6 +107,7 @@ class Batch(NamedTuple):
     advantages: jax.Array
     returns: jax.Array
     ik: Any = None  # networks.ik_inputs of obs (ik_prior), from the rollout
+    teacher_action: Any = None  # the teacher's action at obs (CurriculumConfig.teacher)
 
 
 class Trainer(NamedTuple):
@@ -117,6 +124,8 @@ class Trainer(NamedTuple):
     updates_per_call: int
     num_updates: int
     steps_per_update: int
+    teacher: Any = None
+    """The teacher Policy init puts in the state (CurriculumConfig.teacher), else None."""
 
 
 def make_lr_schedule(config: PPOConfig) -> Callable[[jax.Array], jax.Array]:
@@ -150,14 +159,25 @@ def make_train(
     train_config: PPOConfig | TrainConfig,
     updates_per_call: int = 1,
     devices: int | None = None,
+    teacher: Any = None,
 ) -> Trainer:
     """PPO on `num_envs` copies of `env` (any env BatchedEnv can wrap), over `devices`
     devices (None or 0: all; see mara_mjx.runtime.sharding): environments, rollout and
     minibatches sharded along the env axis, parameters replicated, gradients averaged by
     one all-reduce per minibatch. A PPOConfig alone trains the default policy
-    parametrisation without curriculum (TrainConfig(ppo=config))."""
+    parametrisation without curriculum (TrainConfig(ppo=config)). `teacher`: the
+    Policy (mara_mjx.ppo.teacher.load_teacher) a run with CurriculumConfig.teacher
+    imitates instead of maximising the reward."""
     train_config = for_env(train_config, env)
     config, curriculum = train_config.ppo, train_config.curriculum
+    if bool(curriculum.teacher) != (teacher is not None):
+        raise ValueError(
+            "imitation needs both CurriculumConfig.teacher (the teacher's path, recorded) and "
+            "make_train(..., teacher=mara_mjx.ppo.teacher.load_teacher(path, env_name))"
+            if curriculum.teacher
+            else "make_train got a teacher but the config's teacher is '': set it to the "
+            "teacher's path"
+        )
     benv = BatchedEnv(env, config.num_envs, devices=devices)
     mesh = benv.mesh
     network = make_network(train_config, benv.action_size, training=True)
@@ -187,13 +207,21 @@ def make_train(
             env_state=env_state,
             key=key,
             update=jnp.zeros((), jnp.int32),
+            teacher=None if teacher is None else sharding.replicate(teacher, mesh),
         )
 
     # ------------------------------------------------------------------ rollout
     capped = capped_envs(curriculum, config.num_envs)  # None unless asked for
 
+    lower = jnp.asarray(getattr(env, "joint_lower", -jnp.inf), jnp.float32)
+    upper = jnp.asarray(getattr(env, "joint_upper", jnp.inf), jnp.float32)
+
     def rollout(
-        params: Any, stats: RunningStats | None, env_state: BatchedState, key: jax.Array
+        params: Any,
+        stats: RunningStats | None,
+        env_state: BatchedState,
+        key: jax.Array,
+        teacher: Any = None,
     ) -> tuple[BatchedState, Transition, dict[str, jax.Array]]:
         """num_steps sampled steps, then the deterministic probe step (state discarded)."""
 
@@ -231,6 +259,9 @@ def make_train(
                 episode_return=next_state.episode_return,
                 metrics=next_state.metrics,
                 ik=ik,
+                teacher_action=None
+                if teacher is None
+                else teacher_action(teacher, env_state.obs, lower, upper),
             )
             env_state = jax.tree.map(
                 lambda old, new: jnp.where(probe, old, new), env_state, next_state
@@ -245,9 +276,6 @@ def make_train(
         return env_state, traj, probe_metrics
 
     # ---------------------------------------------------------------------- SGD
-    lower = jnp.asarray(getattr(env, "joint_lower", -jnp.inf), jnp.float32)
-    upper = jnp.asarray(getattr(env, "joint_upper", jnp.inf), jnp.float32)
-
     def loss_fn(params: Any, stats: RunningStats | None, mb: Batch):
         mean, log_std, value = policy(params, stats, mb.obs, mb.ik)
         total, info = ppo_loss(
@@ -264,6 +292,9 @@ def make_train(
             clip_value=config.clip_value,
             normalize_advantages=False,  # done per minibatch over all devices in sgd()
         )
+        if mb.teacher_action is not None:  # imitation: the teacher's action, not the reward
+            total = imitation_loss(mean, log_std, mb.teacher_action)
+            info = info._replace(total=total)
         if curriculum.bound_coef > 0.0:  # keep the mean where the env does not clip it
             total = total + curriculum.bound_coef * bound_loss(mean, lower, upper)
         return total, info
@@ -325,7 +356,7 @@ def make_train(
         key, rollout_key, sgd_key = jax.random.split(state.key, 3)
         stats = stats_in_use(state)
         env_state = schedule.rollout_state(state.env_state, state.update)
-        env_state, traj, probe = rollout(state.params, stats, env_state, rollout_key)
+        env_state, traj, probe = rollout(state.params, stats, env_state, rollout_key, state.teacher)
 
         reward = schedule.shaped_reward(traj.reward, traj, env_state, state.update)
         _, _, value = policy(state.params, stats, traj.obs, traj.ik)
@@ -348,6 +379,7 @@ def make_train(
             advantages=advantages,
             returns=returns,
             ik=traj.ik,
+            teacher_action=traj.teacher_action,
         )
         params, opt_state, info, grad_norm = sgd(
             state.params, state.opt_state, stats, batch, sgd_key
@@ -378,6 +410,7 @@ def make_train(
             env_state=env_state,
             key=key,
             update=state.update + 1,
+            teacher=state.teacher,
         )
         return new_state, metrics
 
@@ -419,6 +452,7 @@ def make_train(
         updates_per_call=updates_per_call,
         num_updates=config.num_updates,
         steps_per_update=config.batch_size,
+        teacher=teacher,
     )
 
 

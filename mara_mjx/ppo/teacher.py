@@ -1,0 +1,97 @@
+"""Imitation of a trained policy (`CurriculumConfig.teacher`): a student network that acts
+alone learns to do what a teacher's deployed policy does.
+
+The teacher is any policy a run of the same task saved, deployed rules included (the IK
+residual and its gates, the orient-first rule, the IK finish, the collision guard). The
+student trains on the states its own sampled policy visits (DAgger without a mixing
+schedule: the teacher is asked at every visited state and never acts), and its loss is
+the negative log-likelihood of the teacher's action (clipped to the joint box, what the
+env would execute) under the student's Gaussian: the mean learns the teacher's action and
+the standard deviation the size of its own error, so the rollouts' noise shrinks with it
+(down to `PPOConfig.log_std_floor`). No reward is maximised; the value head is not
+trained. The student is a plain network (`default`'s parametrisation), exportable to
+`.npz` or ONNX without any IK in its graph: the way to "the learnt policy alone" at the
+teacher's accuracy (benchmarks/NOTES.md section 51).
+
+    teacher = load_teacher("runs/MARAOrient-.../seed_1000", "MARAOrient")
+    trainer = make_train(env, PRESETS["distill"].replace(teacher="runs/..."), teacher=teacher)
+
+With `--seeds`, a teacher run of several seeds (`<run>/seed_<s>/`) gives student seed s
+the teacher of seed s (`teachers_for_seeds`); a single run or checkpoint teaches them all.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from mara_mjx.ppo.checkpoint import CheckpointError, find_checkpoint, load_checkpoint
+from mara_mjx.ppo.policy import Policy, policy_from_checkpoint
+
+
+def _load(path: Path, env_name: str) -> Policy:
+    arrays, meta = load_checkpoint(find_checkpoint(path))
+    if meta["env_name"] != env_name:
+        raise ValueError(
+            f"teacher {str(path)!r} was trained on {meta['env_name']}, not {env_name}: a "
+            "teacher must be a run of the task the student trains on"
+        )
+    policy = policy_from_checkpoint(arrays, meta)
+    # its training seed does not act in the deterministic policy; one value keeps the
+    # state's structure the same whichever seed's teacher it holds
+    return policy.replace(config=policy.config.replace(seed=0))
+
+
+def load_teacher(path: str | Path, env_name: str) -> Policy:
+    """The deployed `Policy` of a teacher run folder (its newest checkpoint), of seed_<s>
+    folders the first seed's, or a checkpoint file. ValueError naming the problem."""
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"teacher {str(path)!r} does not exist: give a run folder or checkpoint")
+    seeds = sorted(path.glob("seed_*")) if path.is_dir() else []
+    try:
+        return _load(seeds[0] if seeds else path, env_name)
+    except CheckpointError as e:
+        raise ValueError(f"teacher: {e}") from e
+
+
+def teachers_for_seeds(path: str | Path, env_name: str, seeds: tuple[int, ...]) -> Policy:
+    """One teacher per student seed, stacked on a leading seed axis (the --seeds program's
+    RunnerState.teacher): `<path>/seed_<s>` for seed s where `path` holds seed folders
+    (every seed's must exist), else the one teacher of `path` for every seed."""
+    path = Path(path)
+    if path.is_dir() and any(path.glob("seed_*")):
+        missing = [s for s in seeds if not (path / f"seed_{s}").is_dir()]
+        if missing:
+            have = sorted(int(p.name[5:]) for p in path.glob("seed_*") if p.name[5:].isdigit())
+            raise ValueError(
+                f"teacher {str(path)!r} has no seed folder for student seed(s) {missing} "
+                f"(it has seeds {have}); train the teacher with the same --seed and --seeds"
+            )
+        try:
+            policies = [_load(path / f"seed_{s}", env_name) for s in seeds]
+        except CheckpointError as e:
+            raise ValueError(f"teacher: {e}") from e
+    else:
+        policies = [load_teacher(path, env_name)] * len(seeds)
+    if len({p.config for p in policies}) > 1:
+        raise ValueError(
+            f"the teacher's seeds in {str(path)!r} were trained with different configs"
+        )
+    return jax.tree.map(lambda *x: jnp.stack(x), *policies)
+
+
+def imitation_loss(mean: jax.Array, log_std: jax.Array, target: jax.Array) -> jax.Array:
+    """Mean over the batch of the Gaussian negative log-likelihood of `target` (the
+    teacher's action), constants dropped: sum over joints of 0.5 ((t - mu) / sigma)^2 +
+    log sigma."""
+    z = (target - mean) * jnp.exp(-log_std)
+    return jnp.mean(jnp.sum(0.5 * jnp.square(z) + log_std, axis=-1))
+
+
+def teacher_action(teacher: Policy, obs: jax.Array, lower: Any, upper: Any) -> jax.Array:
+    """The teacher's deployed action for raw observations, clipped to the joint box."""
+    return jnp.clip(teacher(obs), lower, upper)

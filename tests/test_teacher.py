@@ -1,0 +1,93 @@
+"""Imitation of a trained policy (mara_mjx.ppo.teacher, CurriculumConfig.teacher): the loss,
+the trainer's contract, and a student that learns a fixed teacher's actions (tiny MARA).
+The CLI path (--preset distill --teacher RUN, seed by seed) is in test_seeds_cli.py."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mara_mjx
+from mara_mjx.ppo.config import PRESETS
+from mara_mjx.ppo.networks import make_network
+from mara_mjx.ppo.policy import make_policy
+from mara_mjx.ppo.teacher import imitation_loss, teacher_action
+from mara_mjx.ppo.train import make_train
+
+TINY = dict(num_envs=16, num_steps=8, num_minibatches=2, update_epochs=2, learning_rate=3e-3)
+
+
+def test_imitation_loss_is_the_gaussian_negative_log_likelihood():
+    mean = jnp.array([[0.1, -0.2], [0.0, 0.3]])
+    log_std = jnp.array([-1.0, -2.0])
+    target = jnp.array([[0.2, -0.2], [0.5, 0.1]])
+    sigma = np.exp([-1.0, -2.0])
+    z = (np.asarray(target) - np.asarray(mean)) / sigma
+    expected = np.mean(np.sum(0.5 * z**2 + np.log(sigma), axis=-1))
+    assert float(imitation_loss(mean, log_std, target)) == pytest.approx(expected, rel=1e-6)
+    # the mean's gradient vanishes on the teacher's action, the log-std's where sigma is the error
+    g_mean = jax.grad(lambda m: imitation_loss(m, log_std, target))(target)
+    assert np.allclose(g_mean, 0.0)
+    err = jnp.array([[0.1, 0.1]])
+    g_std = jax.grad(lambda s: imitation_loss(jnp.zeros((1, 2)), s, err))(jnp.log(err[0]))
+    assert np.allclose(g_std, 0.0, atol=1e-6)
+
+
+def _teacher(env):
+    """A fixed policy to imitate: a fresh network of the default preset whose actor's
+    output weights are scaled up (a fresh actor's joint deltas are near 0, as a fresh
+    student's: nothing to learn), its obs statistics those of no data (mean 0, var 1)."""
+    config = PRESETS["default"]
+    network = make_network(config, env.action_size)
+    obs = jnp.zeros((env.observation_size,))
+    params = network.init(jax.random.key(7), obs, obs)
+    out = params["params"]["actor"]["Dense_2"]
+    out = {"kernel": 30.0 * out["kernel"], "bias": out["bias"] + 0.2}
+    params = {
+        "params": {**params["params"], "actor": {**params["params"]["actor"], "Dense_2": out}}
+    }
+    from mara_mjx.ppo.networks import RunningStats
+
+    return make_policy(params, config, RunningStats.create(env.observation_size))
+
+
+def test_make_train_needs_the_teacher_and_its_path_together():
+    env = mara_mjx.make("MARA")
+    with pytest.raises(ValueError, match="make_train\\(..., teacher="):
+        make_train(env, PRESETS["distill"].replace(teacher="runs/x", **TINY))
+    with pytest.raises(ValueError, match="config's teacher is ''"):
+        make_train(env, PRESETS["distill"].replace(**TINY), teacher=_teacher(env))
+    with pytest.raises(ValueError, match="population"):
+        PRESETS["distill"].replace(teacher="runs/x", population=2)
+
+
+def test_a_student_learns_its_teachers_actions():
+    """20 updates of imitation on tiny MARA: the student's deterministic action comes
+    closer to the teacher's on the states the student visits, the rollout's noise shrinks
+    toward that error, the teacher itself is never trained, and the state's teacher is the
+    one given."""
+    env = mara_mjx.make("MARA")
+    teacher = _teacher(env)
+    config = PRESETS["distill"].replace(teacher="a fixed network", init_log_std=-1.0, **TINY)
+    trainer = make_train(env, config, updates_per_call=10, teacher=teacher)
+    state = trainer.init(jax.random.key(0))
+    lower, upper = env.joint_lower, env.joint_upper
+
+    def gap(state):
+        obs = state.env_state.obs
+        student = make_policy(state.params, trainer.config, state.obs_stats)
+        target = teacher_action(teacher, obs, lower, upper)
+        return float(jnp.sqrt(jnp.mean(jnp.square(student(obs) - target))))
+
+    before = gap(state)
+    state, m1 = trainer.run(state, 10)
+    state, m2 = trainer.run(state, 10)
+    after = gap(state)
+    assert after < 0.5 * before, (before, after)
+    assert float(m2["loss"][-1]) < float(m1["loss"][0])
+    log_std = np.asarray(state.params["params"]["log_std"])
+    assert np.all(log_std < -1.0)  # sigma shrank from its initial e^-1 with the error
+    for a, b in zip(jax.tree.leaves(state.teacher), jax.tree.leaves(teacher), strict=True):
+        np.testing.assert_array_equal(a, b)
