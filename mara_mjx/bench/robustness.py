@@ -252,7 +252,8 @@ def make_jobs(config: RobustnessConfig, work: Path) -> list[Job]:
     jobs = []
     for task in config.tasks:
         for recipe in config.recipes:
-            slug = "-".join([task, *(w.strip("-").replace("=", "_") for w in shlex.split(recipe))])
+            words = (w.strip("-").replace("=", "_").replace("/", "_") for w in shlex.split(recipe))
+            slug = "-".join([task, *words])[:120]  # (a --teacher path: one folder, not nested)
             # the command (but its --out) in the name: a rerun with other flags or seeds in
             # the same work folder gets its own run folder, never another command's run
             command = shlex.join(train_argv(config, task, recipe, Path("RUN"))[1:-2])

@@ -1,0 +1,48 @@
+#!/bin/bash
+# GPU driver (issue 31, "the learnt policy alone"; NOTES section 51): per fixed-target task,
+# 16 fresh seeds of the task's CLI default (the teacher, itself judged: a fresh check of
+# the CLI-default rows) and then 16 students of `--preset distill --teacher <that run>`
+# (student seed s learns from teacher seed s), each judged as the task is judged (the
+# paper's evaluation and the hold to the horizon, evaluation seed 1000); with DEFAULT=1
+# also `--preset default` on the same seeds (the learnt policy by reward, the README's row
+# on seeds 1000-1015). One task per GPU (CUDA_VISIBLE_DEVICES), the tasks beyond the GPUs' count queued.
+#   bash benchmarks/gpu/distill_51.sh OFFSET TASK...
+#   e.g. bash benchmarks/gpu/distill_51.sh 1504 MARAOrient MARACollisionOrient MARACollision MARA
+# Several drivers in a row: KEEP_LOG=1 on each, then `echo DRIVER_DONE >> /tmp/res/studies.log`.
+# QUICK=1: the study's tiny CPU settings (--quick), for a check before a GPU call.
+# Launch with setsid, follow with poll.sh in the NEXT call. Results: /tmp/res/dt_<TASK>.tgz
+# (the three studies' folders and logs).
+cd "$(dirname "$0")/../.."
+. benchmarks/gpu/lib.sh
+[ -n "$KEEP_LOG" ] || rm -f /tmp/res/studies.log /tmp/res/sent  # (KEEP_LOG: one of several drivers in a row)
+offset=$1
+shift
+Q=()
+[ -n "$QUICK" ] && Q=(--quick --seeds 2)
+one() {  # TASK: teacher study, student study, default study, packed
+  local t=$1 work=/tmp/work/dt_$1 teacher
+  study() {  # NAME RECIPE
+    python -m mara_mjx.benchmark robustness --tasks $t --recipes "$2" --seeds 16 \
+      --seed_offset $offset --eval_seed 1000 "${Q[@]}" --work_dir $work \
+      --out /tmp/res/dt_$t/$1 > /tmp/res/dt_$t/$1.log 2>&1
+    echo "dt_$t $1 DONE $?" >> /tmp/res/studies.log
+  }
+  mkdir -p /tmp/res/dt_$t
+  study cli cli
+  teacher=$(ls -d $work/runs/$t-cli-*/ | head -1)
+  study distill "distill --teacher ${teacher%/}"
+  [ -n "$DEFAULT" ] && study default default
+  tar czf /tmp/res/dt_$t.tgz.part -C /tmp/res dt_$t && mv /tmp/res/dt_$t.tgz.part /tmp/res/dt_$t.tgz
+}
+n=$(nvidia-smi -L 2>/dev/null | wc -l)
+[ "$n" -ge 1 ] || n=1
+i=0
+pids=()
+for t in "$@"; do
+  (export CUDA_VISIBLE_DEVICES=$((i % n)); one $t) &
+  pids+=($!)
+  i=$((i + 1))
+  [ ${#pids[@]} -eq $n ] && { wait "${pids[@]}"; pids=(); }
+done
+wait
+[ -n "$KEEP_LOG" ] || echo DRIVER_DONE >> /tmp/res/studies.log
