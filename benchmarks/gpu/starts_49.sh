@@ -7,6 +7,8 @@
 #   KIND R  the any-pose recipe `cli --randomize --train_clearance_penalty 1 --plan_steps 16
 #           --commit_rad 0.01`: 1,000 held-out poses (train driver) and 1,000 randomised
 #           draws per speed on the real driver (0.3, 0.5 rad/s), 16 seeds' checkpoints kept;
+#   KIND R2 the recipe at twice its budget (--total_timesteps 240000000; issue 31's "still
+#           so when trained for twice its budget"), judged as R;
 #   KIND P  the same without --randomize (the plain recipe);
 #   KIND C  the task's CLI default (`cli`): 1,000 held-out poses on the train driver.
 #   K...    judged with --plan_starts K for each K in turn on the same training (the first
@@ -26,6 +28,7 @@ one() {  # NAME OFFSET KIND [K...]
   shift 3
   case $kind in
     R) recipe=$R; real="--real_driver --rate_limit false" ;;
+    R2) recipe="$R --total_timesteps 240000000"; real="--real_driver --rate_limit false" ;;
     P) recipe=$P; real="--real_driver --rate_limit false" ;;
     C) recipe=cli; real="" ;;
   esac
