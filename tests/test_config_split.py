@@ -105,11 +105,15 @@ ADDED_SINCE_SPLIT = {
     "train_clearance_path": ("servo", {}),
     "train_capped_fraction": (0.0, {}),
     "train_capped_step": (0.025, {}),
+    "teacher": ("", {}),
 }
 
 
 # Presets added after the split: the preset each one extends (its other fields).
-PRESETS_SINCE_SPLIT = {"random_target_orient_plan": "random_target_orient"}
+PRESETS_SINCE_SPLIT = {
+    "random_target_orient_plan": "random_target_orient",
+    "distill": "random_target",  # default + staggered episodes; its teacher is given by flag
+}
 
 
 def test_every_preset_flattens_to_its_presplit_values():

@@ -39,7 +39,7 @@ from mara_mjx.ppo import (
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo.config import TrainConfig
 from mara_mjx.ppo.networks import forward, make_network
-from mara_mjx.ppo.train import stratified_minibatches
+from mara_mjx.ppo.optim import stratified_minibatches
 
 # --------------------------------------------------------------------------- toy env
 

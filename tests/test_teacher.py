@@ -59,7 +59,7 @@ def test_make_train_needs_the_teacher_and_its_path_together():
         make_train(env, PRESETS["distill"].replace(teacher="runs/x", **TINY))
     with pytest.raises(ValueError, match="config's teacher is ''"):
         make_train(env, PRESETS["distill"].replace(**TINY), teacher=_teacher(env))
-    with pytest.raises(ValueError, match="population"):
+    with pytest.raises(ValueError, match="population > 1 do not combine"):
         PRESETS["distill"].replace(teacher="runs/x", population=2)
 
 

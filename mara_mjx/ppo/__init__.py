@@ -2,7 +2,8 @@
 
 Pure pieces:        gae, ppo_loss, ActorCritic, gaussian_log_prob, gaussian_entropy,
                     RunningStats, update_stats, normalize
-Training:           make_train(env, TrainConfig or PPOConfig, updates_per_call) -> Trainer
+Training:           make_train(env, TrainConfig or PPOConfig, updates_per_call) -> Trainer;
+                    with CurriculumConfig.teacher, imitation of a trained policy (teacher.py)
 Config:             TrainConfig(ppo=PPOConfig, policy=PolicyConfig, curriculum=CurriculumConfig),
                     RunConfig, EvalConfig, PRESETS ("default", "paper", "ros2learn", ...)
 Policy artefact:    make_policy(checkpoint_or_params, config) -> Policy (fn(obs) -> action),
@@ -39,8 +40,9 @@ from mara_mjx.ppo.networks import (
     normalize,
     update_stats,
 )
+from mara_mjx.ppo.optim import make_lr_schedule
 from mara_mjx.ppo.policy import Policy, load_policy, make_policy
-from mara_mjx.ppo.train import RunnerState, Trainer, make_lr_schedule, make_train
+from mara_mjx.ppo.train import RunnerState, Trainer, make_train
 
 __all__ = [
     "MLP",

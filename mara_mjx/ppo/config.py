@@ -66,7 +66,7 @@ class PPOConfig(_ConfigMixin):
     num_minibatches: int = 32
     """Minibatches per epoch; must divide num_envs * num_steps. Minibatches are stratified
     by env (each holds num_steps / num_minibatches random steps of every env when that
-    divides; ppo.train.stratified_minibatches)."""
+    divides; ppo.optim.stratified_minibatches)."""
     update_epochs: int = 10
     """Passes over each batch (reshuffled every pass)."""
     gamma: float = 0.99
@@ -356,13 +356,14 @@ PRESETS["random_target"] = PRESETS["default"].replace(stagger_episodes=True)
 # The same on MARACollision (benchmarks/NOTES.md section 27: position worst 2.17 mm per
 # axis against the default's 4.64). Not on MARA: one seed of five held its pose colliding.
 PRESETS["staggered"] = PRESETS["random_target"]
+# Imitation of a teacher run instead of reward (--teacher RUN, required; NOTES section 51):
+# the same plain network and staggering, no IK deployed (mara_mjx.ppo.teacher).
+PRESETS["distill"] = PRESETS["random_target"]
 
 # MARA, the train CLI's choice there (issue 11, benchmarks/NOTES.md sections 27-28): the
-# default's training, and a deployed policy whose last 6 cm are the IK step's
-# (ik_finish). The default's policies enter the paper's 5 mm box from their own last
-# step, up to 3.73 mm off per axis (10 seeds); with the finish, 15 fresh seeds enter at
-# most 0.25 mm off (benchmarks/results/paper_table/). Its policies need the arm's
-# Jacobian: .npz export keeps the finish (numpy); .onnx needs --drop_ik_finish.
+# default's training, its last 6 cm the IK step's (ik_finish): the default's policies
+# enter the 5 mm box up to 3.73 mm off per axis (10 seeds), with the finish 15 fresh seeds
+# at most 0.25 mm (benchmarks/results/paper_table/). Both export formats keep the finish.
 PRESETS["ik_finish"] = PRESETS["default"].replace(ik_finish=0.06)
 # MARACollision, the train CLI's choice there: `staggered` with the same finish (its
 # policies, 5 seeds: worst 2.17 mm per axis without it, 0.68 mm with it; 10 fresh seeds
@@ -410,13 +411,6 @@ PRESETS["orient_first"] = PRESETS["random_target_orient"].replace(
     probe_reach_steps=100,
     collision_guard_mm=5.0,
 )
-
-# The learnt policy alone at the accuracy of the IK policies (issue 31, benchmarks/NOTES.md
-# section 51): the default's plain network (no IK when deployed: .npz or ONNX) trained to
-# imitate a teacher run instead of maximising the reward (`--teacher RUN`, e.g. the task's
-# CLI default; mara_mjx.ppo.teacher), with staggered episodes so that every batch holds
-# reaching and holding states. Needs --teacher.
-PRESETS["distill"] = PRESETS["default"].replace(stagger_episodes=True)
 
 
 def default_preset(env_name: str) -> str:

@@ -166,12 +166,9 @@ class CurriculumConfig(_ConfigMixin):
     `population`, member 0's probe before the call's exploit step (as its other metrics).
     0: off."""
     teacher: str = ""
-    """Imitation instead of reward: a trained run (folder or checkpoint) of the same task
-    whose deployed policy this run learns to reproduce (`mara_mjx.ppo.teacher`): on the
-    states its own sampled policy visits, the loss is the negative log-likelihood of the
-    teacher's action, and no reward is maximised. With --seeds, a teacher run of several
-    seeds gives student seed s its seed s. The student keeps its own parametrisation (the
-    `distill` preset: the plain network of `default`, no IK when deployed). '' is off."""
+    """Imitation instead of reward: a run (folder or checkpoint) of the same task whose
+    deployed policy this run learns on the states it visits (`mara_mjx.ppo.teacher`); with
+    --seeds, a teacher run of several seeds teaches seed s its seed s. '' is off."""
 
     def __post_init__(self):
         _check_range("bound_coef", self.bound_coef, 0.0, math.inf)
@@ -203,11 +200,8 @@ class CurriculumConfig(_ConfigMixin):
         _check_int("probe_reach_steps", self.probe_reach_steps, minimum=0)
         if not isinstance(self.teacher, str):
             raise ValueError(f"teacher must be a path string ('' for none), got {self.teacher!r}")
-        if self.teacher and self.population > 1:
-            raise ValueError(
-                "teacher (imitation) and population > 1 do not combine: the exploit step "
-                "ranks members by reward, which imitation does not maximise"
-            )
+        if self.teacher and self.population > 1:  # the exploit step ranks by reward
+            raise ValueError("teacher (imitation) and population > 1 do not combine")
         if not isinstance(self.stagger_episodes, bool):
             raise ValueError(
                 f"stagger_episodes must be true or false, got {self.stagger_episodes!r}"
