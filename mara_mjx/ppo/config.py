@@ -357,8 +357,8 @@ PRESETS["random_target"] = PRESETS["default"].replace(stagger_episodes=True)
 # axis against the default's 4.64). Not on MARA: one seed of five held its pose colliding.
 PRESETS["staggered"] = PRESETS["random_target"]
 # Imitation of a teacher run instead of reward (--teacher RUN, required; NOTES section 51):
-# the same plain network and staggering, no IK deployed (mara_mjx.ppo.teacher).
-PRESETS["distill"] = PRESETS["random_target"]
+# a plain network 4x as wide (256 x 256), staggering, no IK deployed (mara_mjx.ppo.teacher).
+PRESETS["distill"] = PRESETS["random_target"].replace(hidden_sizes=(256, 256))
 
 # MARA, the train CLI's choice there (issue 11, benchmarks/NOTES.md sections 27-28): the
 # default's training, its last 6 cm the IK step's (ik_finish): the default's policies
