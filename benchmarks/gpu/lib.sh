@@ -20,6 +20,10 @@
 #     as bash quotes it: printf '%q ' per argument), P at a time (one
 #     1,000-episode cell per line took 4-5 minutes of one CPU core on an H200 host,
 #     14 at once beside a training run: onnxruntime on one thread, the simulator on the GPU), each "cell NAME DONE rc" in studies.log.
+#   driver_start / driver_done: a driver's studies.log cleared and its DRIVER_DONE written,
+#     both skipped under KEEP_LOG=1 (one of several drivers in a row, next_52.sh);
+#   per_gpu FUNC ARG...: FUNC ARG for each ARG, on GPU i mod N (CUDA_VISIBLE_DEVICES), N at
+#     a time (N the GPUs, 1 without any), waiting for all;
 #   the copy of the tree may carry a stale .git (section 45: the session's first HEAD), so the
 #     commit it was sent from is read from SOURCE_COMMIT
 #     (written here before a run, carried: `echo $(git rev-parse HEAD)$(git status
@@ -100,5 +104,20 @@ loops() {  # NAME LABEL P: every file of /tmp/res/onnx_NAME at both speeds, rand
   done > /tmp/res/jobs_loop_$1
   cells /tmp/res/jobs_loop_$1 $3
   tar czf /tmp/res/cells_loop_$1.tgz.part -C /tmp/res/cells $(cd /tmp/res/cells && ls -d loop_$1_*) && mv /tmp/res/cells_loop_$1.tgz.part /tmp/res/cells_loop_$1.tgz
+}
+driver_start() { [ -n "$KEEP_LOG" ] || rm -f /tmp/res/studies.log /tmp/res/sent; }
+driver_done() { [ -n "$KEEP_LOG" ] || echo DRIVER_DONE >> /tmp/res/studies.log; }
+per_gpu() {  # FUNC ARG...
+  local f=$1 n i=0 a pids=()
+  shift
+  n=$(nvidia-smi -L 2>/dev/null | wc -l)
+  [ "$n" -ge 1 ] || n=1
+  for a in "$@"; do
+    (export CUDA_VISIBLE_DEVICES=$((i % n)); $f "$a") &
+    pids+=($!)
+    i=$((i + 1))
+    [ ${#pids[@]} -eq $n ] && { wait "${pids[@]}"; pids=(); }
+  done
+  wait
 }
 if [ -f SOURCE_COMMIT ]; then export MARA_MJX_GIT_COMMIT=$(cat SOURCE_COMMIT); fi

@@ -12,7 +12,7 @@
 # Results: /tmp/res/rt_<TASK>.tgz.
 cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
-[ -n "$KEEP_LOG" ] || rm -f /tmp/res/studies.log /tmp/res/sent  # (KEEP_LOG: one of several drivers in a row)
+driver_start
 offset=$1
 shift
 Q=()
@@ -25,15 +25,5 @@ one() {
   echo "rt_$t DONE $?" >> /tmp/res/studies.log
   pack rt_$t
 }
-n=$(nvidia-smi -L 2>/dev/null | wc -l)
-[ "$n" -ge 1 ] || n=1
-i=0
-pids=()
-for t in "$@"; do
-  (export CUDA_VISIBLE_DEVICES=$((i % n)); one $t) &
-  pids+=($!)
-  i=$((i + 1))
-  [ ${#pids[@]} -eq $n ] && { wait "${pids[@]}"; pids=(); }
-done
-wait
-[ -n "$KEEP_LOG" ] || echo DRIVER_DONE >> /tmp/res/studies.log
+per_gpu one "$@"
+driver_done
