@@ -23,7 +23,8 @@
 #   driver_start / driver_done: a driver's studies.log cleared and its DRIVER_DONE written,
 #     both skipped under KEEP_LOG=1 (one of several drivers in a row, next_52.sh);
 #   per_gpu FUNC ARG...: FUNC ARG for each ARG, on GPU i mod N (CUDA_VISIBLE_DEVICES), N at
-#     a time (N the GPUs, 1 without any), waiting for all;
+#     a time (N the GPUs: those of CUDA_VISIBLE_DEVICES where it is set, else the host's;
+#     1 without any), waiting for all;
 #   the copy of the tree may carry a stale .git (section 45: the session's first HEAD), so the
 #     commit it was sent from is read from SOURCE_COMMIT
 #     (written here before a run, carried: `echo $(git rev-parse HEAD)$(git status
@@ -108,15 +109,19 @@ loops() {  # NAME LABEL P: every file of /tmp/res/onnx_NAME at both speeds, rand
 driver_start() { [ -n "$KEEP_LOG" ] || rm -f /tmp/res/studies.log /tmp/res/sent; }
 driver_done() { [ -n "$KEEP_LOG" ] || echo DRIVER_DONE >> /tmp/res/studies.log; }
 per_gpu() {  # FUNC ARG...
-  local f=$1 n i=0 a pids=()
+  local f=$1 gpus i=0 a pids=()
   shift
-  n=$(nvidia-smi -L 2>/dev/null | wc -l)
-  [ "$n" -ge 1 ] || n=1
+  if [ -n "$CUDA_VISIBLE_DEVICES" ]; then  # a driver given some of the host's GPUs keeps to them
+    IFS=, read -ra gpus <<< "$CUDA_VISIBLE_DEVICES"
+  else
+    gpus=($(seq 0 $(( $(nvidia-smi -L 2>/dev/null | wc -l) - 1 ))))
+    [ ${#gpus[@]} -ge 1 ] || gpus=(0)
+  fi
   for a in "$@"; do
-    (export CUDA_VISIBLE_DEVICES=$((i % n)); $f "$a") &
+    (export CUDA_VISIBLE_DEVICES=${gpus[$((i % ${#gpus[@]}))]}; $f "$a") &
     pids+=($!)
     i=$((i + 1))
-    [ ${#pids[@]} -eq $n ] && { wait "${pids[@]}"; pids=(); }
+    [ ${#pids[@]} -eq ${#gpus[@]} ] && { wait "${pids[@]}"; pids=(); }
   done
   wait
 }
