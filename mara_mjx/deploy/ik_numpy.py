@@ -35,6 +35,7 @@ def finish_meta(radius: float) -> dict[str, Any]:
         "max_position_step": ts.MAX_POSITION_STEP,
         "max_step_joint": ts.MAX_STEP_JOINT,
         "iters": ts.STOP_OUTSIDE_ITERS,
+        "limited": True,  # task_space.limited_step (files without it: the step before)
         "joint_lower": list(lower),
         "joint_upper": list(upper),
         "chain": {k: np.asarray(getattr(chain, k), np.float64).tolist() for k in CHAIN_FIELDS},
@@ -112,11 +113,34 @@ class NumpyFinish:
         return dq * np.minimum(1.0, m["max_step_joint"] / np.maximum(big, 1e-12))
 
     def finish_step(self, q: np.ndarray, e: np.ndarray) -> np.ndarray:
-        """task_space.finish_step: toward `hold` short of the target, then onto it."""
+        """task_space.finish_step: toward `hold` short of the target, then onto it; with
+        the meta's "limited" (files exported since NOTES section 52) the step respects the
+        joint limits (task_space.limited_step), else it is the plain step the file's
+        policy was exported with."""
         hold = self.meta["hold"]
         dist = np.linalg.norm(e, axis=-1, keepdims=True)
         short = e * (1.0 - hold / np.maximum(dist, 1e-12))
-        return self.pose_step(q, np.where(dist > self.meta["within"] * hold, short, e))
+        aim = np.where(dist > self.meta["within"] * hold, short, e)
+        return self.limited_step(q, aim) if self.meta.get("limited") else self.pose_step(q, aim)
+
+    def limited_step(self, q: np.ndarray, e: np.ndarray) -> np.ndarray:
+        """task_space.limited_step: the joints the step would take past a limit stop at
+        it, the others solved again for the rest; scaled as pose_step."""
+        m = self.meta
+        d = self.pose_step(q, e)
+        over = (q + d > self.upper) | (q + d < self.lower)
+        pinned = np.where(over, np.clip(q + d, self.lower, self.upper) - q, 0.0)
+        tcp, axes, anchors = self.frames(q)
+        jac = np.swapaxes(np.cross(axes, tcp[..., None, :] - anchors), -1, -2)  # (..., 3, 6)
+        norm = np.linalg.norm(e, axis=-1, keepdims=True)
+        dx = -e * np.minimum(1.0, m["max_position_step"] / np.maximum(norm, 1e-12))
+        dx = dx - (jac @ pinned[..., None])[..., 0]
+        jac = np.where(over[..., None, :], 0.0, jac)
+        gram = jac @ np.swapaxes(jac, -1, -2) + m["damping"] ** 2 * np.eye(3)
+        free = (np.swapaxes(jac, -1, -2) @ np.linalg.solve(gram, dx[..., None]))[..., 0]
+        dq = np.where(over, pinned, free)
+        big = np.max(np.abs(dq), axis=-1, keepdims=True)
+        return dq * np.minimum(1.0, m["max_step_joint"] / np.maximum(big, 1e-12))
 
     def stop_outside(self, q: np.ndarray, e: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """task_space.stop_outside with the finish's radius."""

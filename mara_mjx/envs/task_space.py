@@ -252,16 +252,44 @@ def pose_step(
 
 def finish_step(q: jax.Array, e: jax.Array) -> jax.Array:
     """The IK finish of a position task (PolicyConfig.ik_finish): q (..., 6) rad, e (..., 3)
-    = p_tcp - p_target (m) -> dq (..., 6) rad, the position-only pose_step toward a point
-    FINISH_HOLD (1 cm) short of the target until the TCP is within FINISH_WITHIN x
-    FINISH_HOLD of it, then toward the target. The last step into an evaluation's 5 mm box
-    is then a Newton step from about 1 cm, whose second-order error is a few hundredths of
-    a millimetre; from 5 cm (one full MAX_POSITION_STEP) it is about 3 mm
-    (benchmarks/NOTES.md sections 27-28)."""
+    = p_tcp - p_target (m) -> dq (..., 6) rad, the position-only IK step (`limited_step`)
+    toward a point FINISH_HOLD (1 cm) short of the target until the TCP is within
+    FINISH_WITHIN x FINISH_HOLD of it, then toward the target. The last step into an
+    evaluation's 5 mm box is then a Newton step from about 1 cm, whose second-order error is
+    a few hundredths of a millimetre; from 5 cm (one full MAX_POSITION_STEP) it is about
+    3 mm (benchmarks/NOTES.md sections 27-28)."""
     dist = jnp.linalg.norm(e, axis=-1, keepdims=True)
     short = e * (1.0 - FINISH_HOLD / jnp.maximum(dist, 1e-12))
     aim = jnp.where(dist > FINISH_WITHIN * FINISH_HOLD, short, e)
-    return pose_step(q, aim)
+    return limited_step(q, aim)
+
+
+def limited_step(q: jax.Array, e: jax.Array) -> jax.Array:
+    """pose_step (position only) that respects the joint limits: q (..., 6), e (..., 3) ->
+    dq (..., 6). The joints that pose_step's step would take past a limit stop at it, and
+    the others are solved again (damped least squares without those joints' columns) for
+    the rest of the displacement, one active-set pass; then scaled down whole as pose_step
+    (MAX_STEP_JOINT). Where no joint crosses a limit it is pose_step's step. The env clips
+    its joint targets to the limits, so a step that ignores them lands off its aim by what
+    the clipped joints would have moved: on postures with a joint at its stop (the
+    shoulder at -2.35 rad on some seeds' MARA approach) the finish entered the paper's
+    5 mm box up to 5 mm off, and with this step under 0.5 mm (benchmarks/NOTES.md section 52)."""
+    chain = nominal_chain()
+    lo6, hi6 = (np.asarray(x, np.float32) for x in joint_ranges())
+    q, e = jax.lax.stop_gradient(q), jax.lax.stop_gradient(e)
+    first = pose_step(q, e)
+
+    def one(q1: jax.Array, e1: jax.Array, d1: jax.Array) -> jax.Array:
+        over = (q1 + d1 > hi6) | (q1 + d1 < lo6)
+        pinned = jnp.where(over, jnp.clip(q1 + d1, lo6, hi6) - q1, 0.0)
+        jac = chain.jacobian(q1)[:3]
+        dx = _clip_norm(-e1, MAX_POSITION_STEP) - jac @ pinned
+        free = dls_step(jnp.where(over[None, :], 0.0, jac), dx)
+        dq = jnp.where(over, pinned, free)
+        big = jnp.max(jnp.abs(dq))
+        return dq * jnp.minimum(1.0, MAX_STEP_JOINT / jnp.maximum(big, 1e-12))
+
+    return jnp.vectorize(one, signature="(6),(3),(6)->(6)")(q, e, first)
 
 
 def pose_step_wrapping(
