@@ -91,3 +91,17 @@ def test_a_student_learns_its_teachers_actions():
     assert np.all(log_std < -1.0)  # sigma shrank from its initial e^-1 with the error
     for a, b in zip(jax.tree.leaves(state.teacher), jax.tree.leaves(teacher), strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_a_single_student_run_takes_the_teacher_seed_of_its_own_seed(tmp_path):
+    """A teacher run of several seeds teaches a single student run (no --seeds) from the
+    seed folder of the student's seed; without one, a clear error naming the seeds it has
+    and the two ways out (nothing is loaded, so empty folders stand in for the seeds)."""
+    from mara_mjx.ppo.teacher import load_teacher
+
+    for s in (1000, 1001):
+        (tmp_path / f"seed_{s}").mkdir()
+    with pytest.raises(ValueError, match=r"seeds 1000, 1001 and has no seed_7 .*--seeds"):
+        load_teacher(tmp_path, "MARA", seed=7)
+    with pytest.raises(ValueError, match="seed_1001"):  # its own seed's folder: loaded
+        load_teacher(tmp_path, "MARA", seed=1001)  # (empty here: no checkpoint in it)

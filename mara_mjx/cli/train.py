@@ -118,8 +118,10 @@ def _main(args: argparse.Namespace) -> int:
     try:  # cheap (nothing is compiled yet): device and batch-divisibility errors first
         devices = 1 if plan.run.seeds > 1 else plan.run.devices  # seeds: see mara_mjx.cli.seeds
         teacher = None
-        if plan.config.curriculum.teacher:  # imitation: the (first seed's) teacher
-            teacher = load_teacher(plan.config.curriculum.teacher, plan.env_name)
+        if plan.config.curriculum.teacher:  # imitation: the teacher of the student's seed
+            # (--seeds: the first seed's, the program's template; seeds.train pairs them all)
+            own = None if plan.run.seeds > 1 else plan.config.ppo.seed
+            teacher = load_teacher(plan.config.curriculum.teacher, plan.env_name, own)
         trainer = make_train(env, plan.config, plan.run.updates_per_call, devices, teacher)
     except ValueError as e:
         raise UserError(str(e)) from e

@@ -18,6 +18,7 @@ teacher's accuracy (benchmarks/NOTES.md section 51).
 
 With `--seeds`, a teacher run of several seeds (`<run>/seed_<s>/`) gives student seed s
 the teacher of seed s (`teachers_for_seeds`); a single run or checkpoint teaches them all.
+A single student run (no `--seeds`) learns from the teacher run's seed of its own seed.
 """
 
 from __future__ import annotations
@@ -45,13 +46,26 @@ def _load(path: Path, env_name: str) -> Policy:
     return policy.replace(config=policy.config.replace(seed=0))
 
 
-def load_teacher(path: str | Path, env_name: str) -> Policy:
-    """The deployed `Policy` of a teacher run folder (its newest checkpoint), of seed_<s>
-    folders the first seed's, or a checkpoint file. ValueError naming the problem."""
+def load_teacher(path: str | Path, env_name: str, seed: int | None = None) -> Policy:
+    """The deployed `Policy` of a teacher run folder (its newest checkpoint) or checkpoint
+    file. Of a run of several seeds (`seed_<s>/` folders): `seed_<seed>`, the student's own
+    seed (a ValueError naming the seeds it holds where it has none such), or with seed None
+    the first seed's (the template of a --seeds program, whose teachers_for_seeds pairs
+    every seed). ValueError naming the problem."""
     path = Path(path)
     if not path.exists():
         raise ValueError(f"teacher {str(path)!r} does not exist: give a run folder or checkpoint")
     seeds = sorted(path.glob("seed_*")) if path.is_dir() else []
+    if seeds and seed is not None:
+        if not (path / f"seed_{seed}").is_dir():
+            have = [p.name[5:] for p in seeds]
+            raise ValueError(
+                f"teacher {str(path)!r} is a run of seeds {', '.join(have)} and has no "
+                f"seed_{seed} for this student's seed {seed}: give one seed's folder "
+                f"(--teacher {path / seeds[0].name}), or train the student with --seed and "
+                "--seeds matching the teacher's, which pairs seed s with seed_s"
+            )
+        seeds = [path / f"seed_{seed}"]
     try:
         return _load(seeds[0] if seeds else path, env_name)
     except CheckpointError as e:
