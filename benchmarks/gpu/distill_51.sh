@@ -10,8 +10,12 @@
 #   e.g. bash benchmarks/gpu/distill_51.sh 1504 MARAOrient MARACollisionOrient MARACollision MARA
 # Several drivers in a row: KEEP_LOG=1 on each, then `echo DRIVER_DONE >> /tmp/res/studies.log`.
 # QUICK=1: the study's tiny CPU settings (--quick), for a check before a GPU call.
-# Launch with setsid, follow with poll.sh in the NEXT call. Results: /tmp/res/dt_<TASK>.tgz
-# (the three studies' folders and logs).
+# STUDENT="NAME FLAGS...": the students' study NAME with FLAGS after `distill --teacher RUN`
+# (default "distill": none).
+# Every study's run checkpoints are kept, /tmp/res/ck_dt_<TASK>_<study>.tgz (the seeds'
+# config.json and newest checkpoint: the failing seeds' evidence).
+# Launch with setsid, follow with poll.sh in the NEXT call. Results: each study's folder and
+# log as it ends, /tmp/res/dt_<TASK>_<study>.tgz.
 cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
 driver_start
@@ -26,13 +30,17 @@ one() {  # TASK: teacher study, student study, default study, packed
       --seed_offset $offset --eval_seed 1000 "${Q[@]}" --work_dir $work \
       --out /tmp/res/dt_$t/$1 > /tmp/res/dt_$t/$1.log 2>&1
     echo "dt_$t $1 DONE $?" >> /tmp/res/studies.log
+    tar czf /tmp/res/dt_${t}_$1.tgz.part -C /tmp/res dt_$t/$1 dt_$t/$1.log \
+      && mv /tmp/res/dt_${t}_$1.tgz.part /tmp/res/dt_${t}_$1.tgz
   }
   mkdir -p /tmp/res/dt_$t
+  local student=(${STUDENT:-distill})
   study cli cli
   teacher=$(ls -d $work/runs/$t-cli-*/ | head -1)
-  study distill "distill --teacher ${teacher%/}"
+  keep "$teacher" /tmp/res/ck_dt_${t}_cli.tgz
+  study ${student[0]} "distill --teacher ${teacher%/} ${student[*]:1}"
+  keep "$(ls -d $work/runs/$t-distill-*/ | head -1)" /tmp/res/ck_dt_${t}_${student[0]}.tgz
   [ -n "$DEFAULT" ] && study default default
-  tar czf /tmp/res/dt_$t.tgz.part -C /tmp/res dt_$t && mv /tmp/res/dt_$t.tgz.part /tmp/res/dt_$t.tgz
 }
 per_gpu one "$@"
 driver_done
