@@ -146,3 +146,23 @@ def test_capped_envs_move_at_a_servos_pace_and_the_others_jump():
     assert np.all(moved[:2] > 0.1), moved
     with pytest.raises(ValueError, match="train_capped_fraction"):
         TrainConfig.of(train_capped_fraction=1.5)
+
+
+# MARACollisionOrient's deployed last approach (the IK step, orient-first) from a posture
+# 5.0 mm from a contact, 60 mm and 49 deg from the target, whose step heads into it
+# (benchmarks/NOTES.md section 52: the guard used to stop the arm there for good)
+FROZEN_Q = np.array([-1.429439, 0.486459, -1.109655, -0.310244, -1.670758, 2.482117], np.float32)
+FROZEN_DQ = np.array([-0.022224, -0.027113, -0.032855, 0.089119, 0.01211, -0.25], np.float32)
+
+
+def test_a_step_blocked_from_its_start_slides_along_the_margin(guard):
+    """Every fraction of the step (down to the bisection's 1/256) comes closer to the
+    contact than the arm is: shortening alone would leave it standing, and a deterministic
+    policy would ask the same step again. The guard slides instead: a step of most of the
+    joint motion asked, without its part toward the contact, that keeps the clearance."""
+    here = float(clearance(jnp.asarray(FROZEN_Q)))
+    assert MARGIN <= here < MARGIN + 1e-4  # on the margin
+    assert float(clearance(jnp.asarray(FROZEN_Q + FROZEN_DQ / 256))) < MARGIN  # blocked at once
+    dq = np.asarray(guard(FROZEN_Q[None], FROZEN_DQ[None]))[0]
+    assert np.abs(dq).max() > 0.1  # it moves (the joint asked most of, most of the way)
+    assert float(clearance(jnp.asarray(FROZEN_Q + dq))) >= MARGIN

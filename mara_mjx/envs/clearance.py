@@ -6,7 +6,10 @@ come closer than `margin` to any listed contact pair (the arm's links, the gripp
 base and the table: the pairs the env's collision check reads, as signed distances of
 the lean pass, envs/lean.py), the step is shortened to alpha dq, alpha found by bisection
 along the step, so that the arm stops short of the contact and the policy chooses again
-from there (PolicyConfig.collision_guard_mm; benchmarks/NOTES.md section 38).
+from there (PolicyConfig.collision_guard_mm; benchmarks/NOTES.md section 38). Where no
+fraction of the step keeps the clearance, it loses its part toward the contact and the arm
+slides along the margin instead (a deterministic policy asks the same step again at the
+same posture, so a stop there was for good: section 52).
 
     dq = keep_clear(q, dq, margin)          # (..., 6), (..., 6) -> (..., 6) rad
 
@@ -60,26 +63,49 @@ def keep_clear(
     """dq (..., 6), shortened to alpha dq where the nominal arm at q + dq (clipped to the
     joint limits) would come closer than min(margin, clearance(q)) to a contact (m); alpha
     by `iters` halvings, the largest fraction found that keeps the clearance. Elsewhere
-    dq unchanged. Batch-first with the loop outermost and its values in the carry, as
-    task_space.stop_outside, so that jax2onnx exports it."""
+    dq unchanged. Where no fraction of the step is kept (blocked from its start: even
+    2^-iters of it comes closer), the step slides instead: dq without its part along the clearance's gradient
+    (finite differences), shortened the same way, so that the arm moves along the margin
+    rather than stopping for good in front of it (a deterministic policy re-asked at the
+    same posture would ask the same step: benchmarks/NOTES.md section 52). Batch-first
+    with the loop outermost and its values in the carry, as task_space.stop_outside, so
+    that jax2onnx exports it."""
     from mara_mjx.envs.task_space import joint_ranges
 
     lo6, hi6 = (np.asarray(x, np.float32) for x in joint_ranges())
     step = dq  # the gradient flows through the step itself, not through alpha
     q, dq = jax.lax.stop_gradient(q), jax.lax.stop_gradient(dq)
-    need = jnp.minimum(jnp.float32(margin), clearance(q))
+    here = clearance(q)
+    need = jnp.minimum(jnp.float32(margin), here)
 
-    def clear(alpha, q, dq, need):  # alpha (...,) -> (...,) bool
-        return clearance(jnp.clip(q + alpha[..., None] * dq, lo6, hi6)) >= need
+    def kept(dq: jax.Array) -> tuple[jax.Array, jax.Array]:  # (...,) the fraction of dq
+        # that keeps `need`, and whether the whole step would not
+        def clear(alpha, q, dq, need):  # alpha (...,) -> (...,) bool
+            return clearance(jnp.clip(q + alpha[..., None] * dq, lo6, hi6)) >= need
 
-    def halve(_, carry):
-        lo, hi, q, dq, need = carry
-        mid = 0.5 * (lo + hi)
-        ok = clear(mid, q, dq, need)
-        return jnp.where(ok, mid, lo), jnp.where(ok, hi, mid), q, dq, need
+        def halve(_, carry):
+            lo, hi, q, dq, need = carry
+            mid = 0.5 * (lo + hi)
+            ok = clear(mid, q, dq, need)
+            return jnp.where(ok, mid, lo), jnp.where(ok, hi, mid), q, dq, need
 
-    ones = jnp.ones(q.shape[:-1], q.dtype)
-    blocked = ~clear(ones, q, dq, need)
-    lo = jax.lax.fori_loop(0, iters, halve, (jnp.zeros_like(ones), ones, q, dq, need))[0]
-    alpha = jnp.where(blocked, lo, 1.0)
-    return alpha[..., None] * step
+        ones = jnp.ones(q.shape[:-1], q.dtype)
+        blocked = ~clear(ones, q, dq, need)
+        lo = jax.lax.fori_loop(0, iters, halve, (jnp.zeros_like(ones), ones, q, dq, need))[0]
+        return jnp.where(blocked, lo, 1.0), blocked
+
+    alpha, blocked = kept(dq)
+    # the clearance's gradient by forward differences (plain ops: jax2onnx traces them)
+    eye = np.eye(6, dtype=np.float32) * SLIDE_H
+    grad = jnp.stack([(clearance(q + eye[i]) - here) / SLIDE_H for i in range(6)], -1)
+    toward = jnp.minimum(jnp.sum(grad * dq, -1, keepdims=True), 0.0)
+    slide_dir = -toward * grad / jnp.maximum(jnp.sum(grad * grad, -1, keepdims=True), 1e-12)
+    slide = kept(dq + slide_dir)[0]
+    stuck = blocked & (alpha == 0.0)  # not even 2^-iters of the step keeps the clearance
+    return jnp.where(
+        stuck[..., None], slide[..., None] * (step + slide_dir), alpha[..., None] * step
+    )
+
+
+SLIDE_H = 1e-2
+"""keep_clear: rad, the finite-difference step of the clearance's gradient."""
