@@ -64,12 +64,12 @@ def keep_clear(
     joint limits) would come closer than min(margin, clearance(q)) to a contact (m); alpha
     by `iters` halvings, the largest fraction found that keeps the clearance. Elsewhere
     dq unchanged. Where no fraction of the step is kept (blocked from its start: even
-    2^-iters of it comes closer), the step slides instead: dq without its part along the clearance's gradient
-    (finite differences), shortened the same way, so that the arm moves along the margin
-    rather than stopping for good in front of it (a deterministic policy re-asked at the
-    same posture would ask the same step: benchmarks/NOTES.md section 52). Batch-first
-    with the loop outermost and its values in the carry, as task_space.stop_outside, so
-    that jax2onnx exports it."""
+    2^-iters of it comes closer), the step slides instead: dq without its part along the
+    clearance's gradient (finite differences), shortened the same way, so that the arm
+    moves along the margin rather than stopping for good in front of it (a deterministic
+    policy re-asked at the same posture would ask the same step: benchmarks/NOTES.md
+    section 52). Batch-first with the loop outermost and its values in the carry, as
+    task_space.stop_outside, so that jax2onnx exports it."""
     from mara_mjx.envs.task_space import joint_ranges
 
     lo6, hi6 = (np.asarray(x, np.float32) for x in joint_ranges())
