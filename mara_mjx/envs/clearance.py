@@ -78,33 +78,33 @@ def keep_clear(
     here = clearance(q)
     need = jnp.minimum(jnp.float32(margin), here)
 
-    def kept(dq: jax.Array) -> tuple[jax.Array, jax.Array]:  # (...,) the fraction of dq
-        # that keeps `need`, and whether the whole step would not
-        def clear(alpha, q, dq, need):  # alpha (...,) -> (...,) bool
-            return clearance(jnp.clip(q + alpha[..., None] * dq, lo6, hi6)) >= need
+    def clear(alpha, q, dq, need):  # alpha (...,) -> (...,) bool
+        return clearance(jnp.clip(q + alpha[..., None] * dq, lo6, hi6)) >= need
 
-        def halve(_, carry):
-            lo, hi, q, dq, need = carry
-            mid = 0.5 * (lo + hi)
-            ok = clear(mid, q, dq, need)
-            return jnp.where(ok, mid, lo), jnp.where(ok, hi, mid), q, dq, need
-
-        ones = jnp.ones(q.shape[:-1], q.dtype)
-        blocked = ~clear(ones, q, dq, need)
-        lo = jax.lax.fori_loop(0, iters, halve, (jnp.zeros_like(ones), ones, q, dq, need))[0]
-        return jnp.where(blocked, lo, 1.0), blocked
-
-    alpha, blocked = kept(dq)
-    # the clearance's gradient by forward differences (plain ops: jax2onnx traces them)
+    ones = jnp.ones(q.shape[:-1], q.dtype)
+    blocked = ~clear(ones, q, dq, need)
+    # blocked from its start: the bisection below would keep nothing of dq
+    stuck = blocked & ~clear(ones * 0.5**iters, q, dq, need)
+    # there the step loses its part along the clearance's gradient (forward differences:
+    # plain ops that jax2onnx traces), and that slide is what the bisection shortens
     eye = np.eye(6, dtype=np.float32) * SLIDE_H
     grad = jnp.stack([(clearance(q + eye[i]) - here) / SLIDE_H for i in range(6)], -1)
     toward = jnp.minimum(jnp.sum(grad * dq, -1, keepdims=True), 0.0)
-    slide_dir = -toward * grad / jnp.maximum(jnp.sum(grad * grad, -1, keepdims=True), 1e-12)
-    slide = kept(dq + slide_dir)[0]
-    stuck = blocked & (alpha == 0.0)  # not even 2^-iters of the step keeps the clearance
-    return jnp.where(
-        stuck[..., None], slide[..., None] * (step + slide_dir), alpha[..., None] * step
-    )
+    slide = -toward * grad / jnp.maximum(jnp.sum(grad * grad, -1, keepdims=True), 1e-12)
+    slide = jnp.where(stuck[..., None], slide, 0.0)
+    dq = dq + slide
+    blocked = (stuck & ~clear(ones, q, dq, need)) | (~stuck & blocked)  # (no bool Where
+    # in onnxruntime)
+
+    def halve(_, carry):
+        lo, hi, q, dq, need = carry
+        mid = 0.5 * (lo + hi)
+        ok = clear(mid, q, dq, need)
+        return jnp.where(ok, mid, lo), jnp.where(ok, hi, mid), q, dq, need
+
+    lo = jax.lax.fori_loop(0, iters, halve, (jnp.zeros_like(ones), ones, q, dq, need))[0]
+    alpha = jnp.where(blocked, lo, 1.0)
+    return alpha[..., None] * (step + slide)
 
 
 SLIDE_H = 1e-2
