@@ -34,12 +34,15 @@ one() {  # TASK: teacher study, student study, default study, packed
       && mv /tmp/res/dt_${t}_$1.tgz.part /tmp/res/dt_${t}_$1.tgz
   }
   mkdir -p /tmp/res/dt_$t
-  local student=(${STUDENT:-distill})
+  local student
+  read -ra student <<< "${STUDENT:-distill}"
   study cli cli
   teacher=$(ls -d $work/runs/$t-cli-*/ | head -1)
   keep "$teacher" /tmp/res/ck_dt_${t}_cli.tgz
-  study ${student[0]} "distill --teacher ${teacher%/} ${student[*]:1}"
-  keep "$(ls -d $work/runs/$t-distill-*/ | head -1)" /tmp/res/ck_dt_${t}_${student[0]}.tgz
+  study ${student[0]} "distill --teacher ${teacher%/}${student[1]:+ ${student[*]:1}}"
+  # the student run this study just trained: the newest distill folder (a work folder
+  # may hold an earlier study's students of the same teacher)
+  keep "$(ls -dt $work/runs/$t-distill-*/ | head -1)" /tmp/res/ck_dt_${t}_${student[0]}.tgz
   [ -n "$DEFAULT" ] && study default default
 }
 per_gpu one "$@"

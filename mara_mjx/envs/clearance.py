@@ -63,12 +63,15 @@ def keep_clear(
     """dq (..., 6), shortened to alpha dq where the nominal arm at q + dq (clipped to the
     joint limits) would come closer than min(margin, clearance(q)) to a contact (m); alpha
     by `iters` halvings, the largest fraction found that keeps the clearance. Elsewhere
-    dq unchanged. Where no fraction of the step is kept (blocked from its start: even
-    2^-iters of it comes closer), the step slides instead: dq without its part along the
-    clearance's gradient (finite differences), shortened the same way, so that the arm
-    moves along the margin rather than stopping for good in front of it (a deterministic
-    policy re-asked at the same posture would ask the same step: benchmarks/NOTES.md
-    section 52). Batch-first with the loop outermost and its values in the carry, as
+    dq unchanged. Where the step is blocked from its start (even its 2^-iters part comes
+    closer: then the bisection, along a clearance that falls monotonically, keeps
+    nothing), the step slides instead: dq without its part toward the contact along the
+    clearance's gradient (finite differences) and with a little away from it (SLIDE_OUT),
+    no larger on any joint than dq, shortened the same way, so that the arm moves along
+    the margin rather than stopping for good in front of it (a deterministic policy
+    re-asked at the same posture would ask the same step: benchmarks/NOTES.md section 52).
+    Wherever the 2^-iters part keeps the clearance, the output is the plain guard's.
+    Batch-first with the loop outermost and its values in the carry, as
     task_space.stop_outside, so that jax2onnx exports it."""
     from mara_mjx.envs.task_space import joint_ranges
 
@@ -83,15 +86,25 @@ def keep_clear(
 
     ones = jnp.ones(q.shape[:-1], q.dtype)
     blocked = ~clear(ones, q, dq, need)
-    # blocked from its start: the bisection below would keep nothing of dq
+    # blocked from its start (even 2^-iters of the step comes closer): there the step
+    # slides. It loses its part along the clearance's gradient g (forward differences:
+    # plain ops that jax2onnx traces) and gains SLIDE_OUT of its size along g, so that the
+    # slid step gains clearance to first order and the checks below are not decided by
+    # rounding (a step exactly along the margin's level set is: JAX and the ONNX graph
+    # then disagree); scaled back to dq's largest joint move; that is what the bisection
+    # shortens.
     stuck = blocked & ~clear(ones * 0.5**iters, q, dq, need)
-    # there the step loses its part along the clearance's gradient (forward differences:
-    # plain ops that jax2onnx traces), and that slide is what the bisection shortens
     eye = np.eye(6, dtype=np.float32) * SLIDE_H
     grad = jnp.stack([(clearance(q + eye[i]) - here) / SLIDE_H for i in range(6)], -1)
+    g2 = jnp.maximum(jnp.sum(grad * grad, -1, keepdims=True), 1e-12)
     toward = jnp.minimum(jnp.sum(grad * dq, -1, keepdims=True), 0.0)
-    slide = -toward * grad / jnp.maximum(jnp.sum(grad * grad, -1, keepdims=True), 1e-12)
-    slide = jnp.where(stuck[..., None], slide, 0.0)
+    size = jnp.linalg.norm(dq, axis=-1, keepdims=True)
+    slid = dq + (SLIDE_OUT * size * jnp.sqrt(g2) - toward) * grad / g2
+    biggest = jnp.max(jnp.abs(dq), -1, keepdims=True)
+    slid = slid * jnp.minimum(
+        1.0, biggest / jnp.maximum(jnp.max(jnp.abs(slid), -1, keepdims=True), 1e-12)
+    )
+    slide = jnp.where(stuck[..., None], slid - dq, 0.0)
     dq = dq + slide
     blocked = (stuck & ~clear(ones, q, dq, need)) | (~stuck & blocked)  # (no bool Where
     # in onnxruntime)
@@ -104,8 +117,12 @@ def keep_clear(
 
     lo = jax.lax.fori_loop(0, iters, halve, (jnp.zeros_like(ones), ones, q, dq, need))[0]
     alpha = jnp.where(blocked, lo, 1.0)
+    # (the gradient flows through `step` as alpha I; the slide is a constant to it: the
+    # guard is deployed only)
     return alpha[..., None] * (step + slide)
 
 
 SLIDE_H = 1e-2
 """keep_clear: rad, the finite-difference step of the clearance's gradient."""
+SLIDE_OUT = 0.05
+"""keep_clear: a slid step's part away from the contact, as a fraction of its size."""
