@@ -269,11 +269,12 @@ def limited_step(q: jax.Array, e: jax.Array) -> jax.Array:
     dq (..., 6). The joints that pose_step's step would take past a limit stop at it, and
     the others are solved again (damped least squares without those joints' columns) for
     the rest of the displacement, one active-set pass; then scaled down whole as pose_step
-    (MAX_STEP_JOINT). Where no joint crosses a limit it is pose_step's step. The env clips
-    its joint targets to the limits, so a step that ignores them lands off its aim by what
-    the clipped joints would have moved: on postures with a joint at its stop (the
-    shoulder at -2.35 rad on some seeds' MARA approach) the finish entered the paper's
-    5 mm box up to 5 mm off, and with this step under 0.5 mm (benchmarks/NOTES.md section 52)."""
+    (MAX_STEP_JOINT). Where no joint crosses a limit it is pose_step's step (to float32
+    rounding). The env clips its joint targets to the limits, so a step that ignores them
+    lands off its aim by what the clipped joints would have moved: on postures with a
+    joint at its stop (the shoulder at -2.35 rad on some seeds' MARA approach) the finish
+    entered the paper's 5 mm box up to 5 mm off, and with this step under 0.5 mm
+    (benchmarks/NOTES.md section 52)."""
     chain = nominal_chain()
     lo6, hi6 = (np.asarray(x, np.float32) for x in joint_ranges())
     q, e = jax.lax.stop_gradient(q), jax.lax.stop_gradient(e)
