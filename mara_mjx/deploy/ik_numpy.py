@@ -102,15 +102,26 @@ class NumpyFinish:
 
     def pose_step(self, q: np.ndarray, e: np.ndarray) -> np.ndarray:
         """task_space.pose_step without an orientation: (..., 6) rad."""
-        m = self.meta
+        jac, dx = self._position_rows(q, e)
+        return self._joint_capped(self._dls(jac, dx))
+
+    def _position_rows(self, q: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The position Jacobian (..., 3, 6) at q and the asked TCP move (..., 3): -e, at
+        most max_position_step long."""
         tcp, axes, anchors = self.frames(q)
         jac = np.swapaxes(np.cross(axes, tcp[..., None, :] - anchors), -1, -2)  # (..., 3, 6)
         norm = np.linalg.norm(e, axis=-1, keepdims=True)
-        dx = -e * np.minimum(1.0, m["max_position_step"] / np.maximum(norm, 1e-12))
-        gram = jac @ np.swapaxes(jac, -1, -2) + m["damping"] ** 2 * np.eye(3)
-        dq = (np.swapaxes(jac, -1, -2) @ np.linalg.solve(gram, dx[..., None]))[..., 0]
+        return jac, -e * np.minimum(1.0, self.meta["max_position_step"] / np.maximum(norm, 1e-12))
+
+    def _dls(self, jac: np.ndarray, dx: np.ndarray) -> np.ndarray:
+        """task_space.dls_step: J^T (J J^T + damping^2 I)^-1 dx, batched."""
+        gram = jac @ np.swapaxes(jac, -1, -2) + self.meta["damping"] ** 2 * np.eye(3)
+        return (np.swapaxes(jac, -1, -2) @ np.linalg.solve(gram, dx[..., None]))[..., 0]
+
+    def _joint_capped(self, dq: np.ndarray) -> np.ndarray:
+        """dq scaled down whole so that no joint moves more than max_step_joint."""
         big = np.max(np.abs(dq), axis=-1, keepdims=True)
-        return dq * np.minimum(1.0, m["max_step_joint"] / np.maximum(big, 1e-12))
+        return dq * np.minimum(1.0, self.meta["max_step_joint"] / np.maximum(big, 1e-12))
 
     def finish_step(self, q: np.ndarray, e: np.ndarray) -> np.ndarray:
         """task_space.finish_step: toward `hold` short of the target, then onto it; with
@@ -126,21 +137,14 @@ class NumpyFinish:
     def limited_step(self, q: np.ndarray, e: np.ndarray) -> np.ndarray:
         """task_space.limited_step: the joints the step would take past a limit stop at
         it, the others solved again for the rest; scaled as pose_step."""
-        m = self.meta
-        d = self.pose_step(q, e)
+        jac, dx = self._position_rows(q, e)
+        d = self._joint_capped(self._dls(jac, dx))  # pose_step's step
         over = (q + d > self.upper) | (q + d < self.lower)
         pinned = np.where(over, np.clip(q + d, self.lower, self.upper) - q, 0.0)
-        tcp, axes, anchors = self.frames(q)
-        jac = np.swapaxes(np.cross(axes, tcp[..., None, :] - anchors), -1, -2)  # (..., 3, 6)
-        norm = np.linalg.norm(e, axis=-1, keepdims=True)
-        dx = -e * np.minimum(1.0, m["max_position_step"] / np.maximum(norm, 1e-12))
-        dx = dx - (jac @ pinned[..., None])[..., 0]
-        jac = np.where(over[..., None, :], 0.0, jac)
-        gram = jac @ np.swapaxes(jac, -1, -2) + m["damping"] ** 2 * np.eye(3)
-        free = (np.swapaxes(jac, -1, -2) @ np.linalg.solve(gram, dx[..., None]))[..., 0]
-        dq = np.where(over, pinned, free)
-        big = np.max(np.abs(dq), axis=-1, keepdims=True)
-        return dq * np.minimum(1.0, m["max_step_joint"] / np.maximum(big, 1e-12))
+        free = self._dls(
+            np.where(over[..., None, :], 0.0, jac), dx - (jac @ pinned[..., None])[..., 0]
+        )
+        return self._joint_capped(np.where(over, pinned, free))
 
     def stop_outside(self, q: np.ndarray, e: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """task_space.stop_outside with the finish's radius."""

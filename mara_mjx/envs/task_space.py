@@ -278,19 +278,23 @@ def limited_step(q: jax.Array, e: jax.Array) -> jax.Array:
     chain = nominal_chain()
     lo6, hi6 = (np.asarray(x, np.float32) for x in joint_ranges())
     q, e = jax.lax.stop_gradient(q), jax.lax.stop_gradient(e)
-    first = pose_step(q, e)
 
-    def one(q1: jax.Array, e1: jax.Array, d1: jax.Array) -> jax.Array:
+    def one(q1: jax.Array, e1: jax.Array) -> jax.Array:
+        jac = chain.jacobian(q1)[:3]
+        dx = _clip_norm(-e1, MAX_POSITION_STEP)
+        d1 = _joint_capped(dls_step(jac, dx))  # pose_step's step
         over = (q1 + d1 > hi6) | (q1 + d1 < lo6)
         pinned = jnp.where(over, jnp.clip(q1 + d1, lo6, hi6) - q1, 0.0)
-        jac = chain.jacobian(q1)[:3]
-        dx = _clip_norm(-e1, MAX_POSITION_STEP) - jac @ pinned
-        free = dls_step(jnp.where(over[None, :], 0.0, jac), dx)
-        dq = jnp.where(over, pinned, free)
-        big = jnp.max(jnp.abs(dq))
-        return dq * jnp.minimum(1.0, MAX_STEP_JOINT / jnp.maximum(big, 1e-12))
+        free = dls_step(jnp.where(over[None, :], 0.0, jac), dx - jac @ pinned)
+        return _joint_capped(jnp.where(over, pinned, free))
 
-    return jnp.vectorize(one, signature="(6),(3),(6)->(6)")(q, e, first)
+    return jnp.vectorize(one, signature="(6),(3)->(6)")(q, e)
+
+
+def _joint_capped(dq: jax.Array) -> jax.Array:
+    """dq (6,) scaled down whole so that no joint moves more than MAX_STEP_JOINT."""
+    big = jnp.max(jnp.abs(dq))
+    return dq * jnp.minimum(1.0, MAX_STEP_JOINT / jnp.maximum(big, 1e-12))
 
 
 def pose_step_wrapping(
@@ -364,10 +368,7 @@ def pose_step_wrapping(
                 held = jnp.append(dls_step(jac[:, :5], rhs), long_way)
                 dq = jnp.where(use, held, dq)
             dq = dq.at[5].set(jnp.where(use, long_way, dq[5]))
-        big = jnp.max(jnp.abs(dq))
-        return dq * jnp.minimum(
-            1.0, MAX_STEP_JOINT / jnp.maximum(big, 1e-12)
-        ), use | rolling | alone
+        return _joint_capped(dq), use | rolling | alone
 
     if rot is None:
         return jnp.vectorize(one, signature="(6),(3)->(6),()")(q, e)
