@@ -106,8 +106,7 @@ def keep_clear(
     )
     slide = jnp.where(stuck[..., None], slid - dq, 0.0)
     dq = dq + slide
-    blocked = (stuck & ~clear(ones, q, dq, need)) | (~stuck & blocked)  # (no bool Where
-    # in onnxruntime)
+    blocked = ~clear(ones, q, dq, need)  # (unchanged where the slide is an exact 0)
 
     def halve(_, carry):
         lo, hi, q, dq, need = carry
