@@ -14,26 +14,16 @@
 # (default "distill": none).
 # Every study's run checkpoints are kept, /tmp/res/ck_dt_<TASK>_<study>.tgz (the seeds'
 # config.json and newest checkpoint: the failing seeds' evidence).
-# Launch with setsid, follow with poll.sh in the NEXT call. Results: each study's folder and
-# log as it ends, /tmp/res/dt_<TASK>_<study>.tgz.
+# Launch with setsid, follow with poll.sh in the NEXT call. Results: each study's folder
+# /tmp/res/dt_<TASK>_<study> and its log, packed as it ends (.tgz).
 cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
 driver_start
 offset=$1
 shift
-Q=()
-[ -n "$QUICK" ] && Q=(--quick --seeds 2)
-one() {  # TASK: teacher study, student study, default study, packed
+one() {  # TASK: teacher study, student study, default study, each packed as it ends
   local t=$1 work=/tmp/work/dt_$1 teacher
-  study() {  # NAME RECIPE
-    python -m mara_mjx.benchmark robustness --tasks $t --recipes "$2" --seeds 16 \
-      --seed_offset $offset --eval_seed 1000 "${Q[@]}" --work_dir $work \
-      --out /tmp/res/dt_$t/$1 > /tmp/res/dt_$t/$1.log 2>&1
-    echo "dt_$t $1 DONE $?" >> /tmp/res/studies.log
-    tar czf /tmp/res/dt_${t}_$1.tgz.part -C /tmp/res dt_$t/$1 dt_$t/$1.log \
-      && mv /tmp/res/dt_${t}_$1.tgz.part /tmp/res/dt_${t}_$1.tgz
-  }
-  mkdir -p /tmp/res/dt_$t
+  study() { robust dt_${t}_$1 $work $t "$2" --seed_offset $offset; }  # NAME RECIPE
   local student
   read -ra student <<< "${STUDENT:-distill}"
   study cli cli

@@ -10,8 +10,9 @@
 #   mcort NAME RECIPE FLAGS...: one MARACollisionOrientRandomTarget robustness study (real
 #     driver without the rate limit, evaluation seed 1000) into /tmp/res/NAME, packed;
 #   pack NAME: /tmp/res/NAME and NAME.log into /tmp/res/NAME.tgz (whole or not at all);
-#   judged NAME WORK RECIPE FLAGS...: one MARACollisionOrientRandomTarget study of 16 seeds
-#     on the training in WORK (starts_47.sh, starts_49.sh), packed;
+#   robust NAME WORK TASKS RECIPE FLAGS...: one robustness study of 16 seeds (evaluation
+#     seed 1000, QUICK=1 its tiny CPU settings) on the training in WORK, packed; judged NAME
+#     WORK RECIPE FLAGS...: the same of MARACollisionOrientRandomTarget (starts_49.sh);
 #   picks_of NAME: the judged seeds of /tmp/res/NAME's study; export_all RUN OUT SEEDS...:
 #     each seed exported to OUT/policy_S.onnx (8 at a time; EXPORT_FLAGS, if set, added);
 #     loops NAME LABEL P: every file of /tmp/res/onnx_NAME in evaluate's loop at 0.3 and
@@ -59,16 +60,23 @@ mcort() {
   echo "$n DONE $?" >> /tmp/res/studies.log
   pack $n
 }
-judged() {  # NAME WORK RECIPE FLAGS...: one MARACollisionOrientRandomTarget study of 16 seeds
-  # into /tmp/res/NAME on the training in WORK (a second study with the same WORK and train
-  # command reuses the first one's runs), packed
-  local n=$1 work=$2 recipe=$3
-  shift 3
-  python -m mara_mjx.benchmark robustness --eval_seed 1000 --seeds 16 \
-    --tasks MARACollisionOrientRandomTarget --recipes "$recipe" "$@" \
-    --out /tmp/res/$n --work_dir $work > /tmp/res/$n.log 2>&1
+robust() {  # NAME WORK TASKS RECIPE FLAGS...: one robustness study of 16 seeds (evaluation
+  # seed 1000; FLAGS after those, e.g. --seed_offset; QUICK=1: the study's tiny CPU settings)
+  # of TASKS (words) on the training in WORK (a second study with the same WORK and train
+  # command reuses the first one's runs) into /tmp/res/NAME, its "NAME DONE rc" line in
+  # studies.log, packed
+  local n=$1 work=$2 tasks=$3 recipe=$4
+  shift 4
+  python -m mara_mjx.benchmark robustness --eval_seed 1000 --seeds 16 --tasks $tasks \
+    --recipes "$recipe" "$@" ${QUICK:+--quick --seeds 2} --out /tmp/res/$n --work_dir $work \
+    > /tmp/res/$n.log 2>&1
   echo "$n DONE $?" >> /tmp/res/studies.log
   pack $n
+}
+judged() {  # NAME WORK RECIPE FLAGS...: robust on MARACollisionOrientRandomTarget
+  local n=$1 work=$2 recipe=$3
+  shift 3
+  robust $n $work MARACollisionOrientRandomTarget "$recipe" "$@"
 }
 cell() {  # NAME ARGS...: one deploy_sweep.py run into /tmp/res/cells/NAME
   python benchmarks/deploy_sweep.py --out /tmp/res/cells/$1 "${@:2}" > /tmp/res/cells/$1.log 2>&1

@@ -19,16 +19,8 @@
 cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
 rm -f /tmp/res/studies.log /tmp/res/sent
-Q=()
-[ -n "$QUICK" ] && Q=(--quick --seeds 2)
 export KEEP_LOG=1 STUDENT="floor --log_std_floor -3"
-rob() {  # NAME TASKS RECIPE OFFSET: one study of 16 seeds (train driver), packed
-  python -m mara_mjx.benchmark robustness --tasks $2 --recipes "$3" --seeds 16 \
-    --seed_offset $4 --eval_seed 1000 "${Q[@]}" --work_dir /tmp/work/$1 --out /tmp/res/$1 \
-    > /tmp/res/$1.log 2>&1
-  echo "$1 DONE $?" >> /tmp/res/studies.log
-  pack $1
-}
+rob() { robust $1 /tmp/work/$1 "$2" "$3" --seed_offset $4; }  # NAME TASKS RECIPE OFFSET
 (export CUDA_VISIBLE_DEVICES=0; rob fin_1552 "MARA MARACollision" cli 1552
  bash benchmarks/gpu/distill_51.sh 1504 MARACollisionOrient) &
 (export CUDA_VISIBLE_DEVICES=1; bash benchmarks/gpu/distill_51.sh 1504 MARAOrient

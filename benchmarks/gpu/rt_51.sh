@@ -15,15 +15,6 @@ cd "$(dirname "$0")/../.."
 driver_start
 offset=$1
 shift
-Q=()
-[ -n "$QUICK" ] && Q=(--quick --seeds 2)
-one() {
-  local t=$1
-  python -m mara_mjx.benchmark robustness --tasks $t --recipes cli --seeds 16 \
-    --seed_offset $offset --eval_seed 1000 "${Q[@]}" --work_dir /tmp/work/rt_$t \
-    --out /tmp/res/rt_$t > /tmp/res/rt_$t.log 2>&1
-  echo "rt_$t DONE $?" >> /tmp/res/studies.log
-  pack rt_$t
-}
+one() { robust rt_$1 /tmp/work/rt_$1 $1 cli --seed_offset $offset; }
 per_gpu one "$@"
 driver_done
