@@ -12,7 +12,7 @@ move 0; an arm pressed into a contact shows negative clearance and a collision o
 step; a cycle shows repeating rows.
 
     python benchmarks/episode_trace.py RUN/seed_S [--eval_seed 1000] [--episodes 10]
-        [--steps 300] [--last 12] [--episode K ...] [--json OUT]
+        [--steps 300] [--last 12] [--episode K ...] [--json OUT [--overwrite]]
 
 (benchmarks/NOTES.md section 52: study 52's lost episodes, MARACollisionOrient's seed 1519
 and the distill students stuck in contact.)
@@ -79,7 +79,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--last", type=int, default=12)
     p.add_argument("--episode", type=int, nargs="*", default=None)
     p.add_argument("--json", type=Path, default=None)
+    p.add_argument("--overwrite", action="store_true", help="--json may replace any file")
     args = p.parse_args(argv)
+    from mara_mjx.cli.common import UserError
+    from mara_mjx.runtime import files, outputs
+
+    if args.json:  # a new file (or --json's own earlier output), checked before the work
+        try:
+            outputs.check_output(args.json, "--json report", _ours, args.overwrite)
+        except UserError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
     rows = trace(args.run, args.eval_seed, args.episodes, args.steps)
     e_end = rows["e_mm"][-1]  # (episodes, 3)
     missed = [int(i) for i in np.where(~np.all(e_end <= 5.0, -1))[0]]
@@ -96,8 +106,24 @@ def main(argv: list[str] | None = None) -> int:
                   f" | {rows['move'][t, i]:.4f} | {rows['move_unguarded'][t, i]:.4f}"
                   f" | {'yes' if rows['guarded'][t, i] else ''}")  # fmt: skip
     if args.json:
-        args.json.write_text(json.dumps({k: v.tolist() for k, v in rows.items()}))
+        record = {
+            "command": COMMAND,
+            "run": str(args.run),
+            **{k: v.tolist() for k, v in rows.items()},
+        }
+        files.write_atomic(args.json, json.dumps(record))
     return 0
+
+
+COMMAND = "python benchmarks/episode_trace.py"
+
+
+def _ours(path: Path) -> bool:
+    """An earlier --json report of this script (replaced; anything else is refused)."""
+    try:
+        return json.loads(path.read_text()).get("command") == COMMAND
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 if __name__ == "__main__":
