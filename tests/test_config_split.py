@@ -95,9 +95,11 @@ def test_sections_hold_every_field_once_and_ppo_config_is_the_algorithm():
 # Fields added after the split: (the default every pre-split config loads with, the
 # presets that set another value and that value).
 ADDED_SINCE_SPLIT = {
-    "collision_guard_mm": (0.0, {"orient_first": 5.0}),
-    "plan_steps": (0, {"random_target_orient_plan": 16}),
-    "plan_starts": (0, {"random_target_orient_plan": 16}),
+    "collision_guard_mm": (0.0, {"orient_first": 5.0, "random_target_plan_guard": 5.0}),
+    "plan_steps": (0, {p: 16 for p in ("random_target_orient_plan", "random_target_plan",
+                                       "random_target_plan_guard")}),
+    "plan_starts": (0, {p: 16 for p in ("random_target_orient_plan", "random_target_plan",
+                                        "random_target_plan_guard")}),
     "commit_rad": (0.0, {}),
     "train_clearance_penalty": (0.0, {}),
     "train_clearance_mm": (10.0, {}),
@@ -112,6 +114,8 @@ ADDED_SINCE_SPLIT = {
 # Presets added after the split: the preset each one extends (its other fields).
 PRESETS_SINCE_SPLIT = {
     "random_target_orient_plan": ("random_target_orient", {}),
+    "random_target_plan": ("random_target_orient", {"total_timesteps": 50_000_000}),
+    "random_target_plan_guard": ("random_target_orient", {"total_timesteps": 50_000_000}),
     "distill": ("random_target", {"hidden_sizes": [256, 256]}),  # its teacher: a flag
 }
 

@@ -354,9 +354,10 @@ def test_bad_seeds_fail_fast_with_a_clear_message(trained, tmp_path, capsys, com
 
 
 def test_the_preset_follows_the_task_unless_one_is_given():
-    """A *RandomTarget env trains with the 'random_target' preset (staggered first
-    episodes), an *OrientRandomTarget one with 'random_target_orient' (plus the IK
-    residual recipe; MARACollisionOrientRandomTarget with its deployed plan and restarts,
+    """A *RandomTarget position env trains with 'random_target_plan' (the IK residual, the
+    plan and its restarts at 5e7 steps; MARACollisionRandomTarget with the collision guard,
+    'random_target_plan_guard'), an *OrientRandomTarget one with 'random_target_orient'
+    (MARACollisionOrientRandomTarget with its deployed plan and restarts,
     'random_target_orient_plan'), the fixed Orient tasks with 'orient_first', MARACollision with
     'staggered_ik_finish' and MARA with 'ik_finish'; --preset and flags win. No compile."""
 
@@ -375,7 +376,11 @@ def test_the_preset_follows_the_task_unless_one_is_given():
     assert ppo("--env", "MARACollisionOrientRandomTarget") == plain.replace(
         plan_steps=16, plan_starts=16)  # fmt: skip
     assert fields("--env", "MARAOrientRandomTarget").plan_steps == 0  # not measured there
-    assert fields("--env", "MARACollisionRandomTarget").ik_prior == ""
+    # the position tasks: the same machinery at 5e7 steps, exactly what section 53 measured
+    for task, guard in (("MARARandomTarget", ()), ("MARACollisionRandomTarget",
+                                                   ("--collision_guard_mm", "5"))):
+        assert ppo("--env", task) == ppo("--env", task, "--preset", "random_target_orient_plan",
+                                         "--total_timesteps", "50000000", *guard)  # fmt: skip
     assert fields("--env", "MARAOrientRandomTarget", "--ik_gate", "0.05").ik_gate == 0.05
     for task in ("MARAOrient", "MARACollisionOrient"):
         first = fields("--env", task)
