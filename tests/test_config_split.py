@@ -92,24 +92,15 @@ def test_sections_hold_every_field_once_and_ppo_config_is_the_algorithm():
     assert len(names) == len(set(names)) == 54 + added - len(config_module.REMOVED)
 
 
+# The presets that deploy the plan and its restarts.
+PLANNED = ("random_target_orient_plan", "random_target_plan", "random_target_plan_guard")
+
 # Fields added after the split: (the default every pre-split config loads with, the
 # presets that set another value and that value).
 ADDED_SINCE_SPLIT = {
     "collision_guard_mm": (0.0, {"orient_first": 5.0, "random_target_plan_guard": 5.0}),
-    "plan_steps": (
-        0,
-        {
-            p: 16
-            for p in ("random_target_orient_plan", "random_target_plan", "random_target_plan_guard")
-        },
-    ),
-    "plan_starts": (
-        0,
-        {
-            p: 16
-            for p in ("random_target_orient_plan", "random_target_plan", "random_target_plan_guard")
-        },
-    ),
+    "plan_steps": (0, dict.fromkeys(PLANNED, 16)),
+    "plan_starts": (0, dict.fromkeys(PLANNED, 16)),
     "commit_rad": (0.0, {}),
     "train_clearance_penalty": (0.0, {}),
     "train_clearance_mm": (10.0, {}),

@@ -377,10 +377,10 @@ def test_the_preset_follows_the_task_unless_one_is_given():
         plan_steps=16, plan_starts=16)  # fmt: skip
     assert fields("--env", "MARAOrientRandomTarget").plan_steps == 0  # not measured there
     # the position tasks: the same machinery at 5e7 steps, exactly what section 53 measured
-    for task, guard in (("MARARandomTarget", ()), ("MARACollisionRandomTarget",
-                                                   ("--collision_guard_mm", "5"))):
-        assert ppo("--env", task) == ppo("--env", task, "--preset", "random_target_orient_plan",
-                                         "--total_timesteps", "50000000", *guard)  # fmt: skip
+    planned = ("--preset", "random_target_orient_plan", "--total_timesteps", "50000000")
+    assert ppo("--env", "MARARandomTarget") == ppo("--env", "MARARandomTarget", *planned)
+    guarded = ppo("--env", "MARACollisionRandomTarget", *planned, "--collision_guard_mm", "5")
+    assert ppo("--env", "MARACollisionRandomTarget") == guarded
     assert fields("--env", "MARAOrientRandomTarget", "--ik_gate", "0.05").ik_gate == 0.05
     for task in ("MARAOrient", "MARACollisionOrient"):
         first = fields("--env", task)
