@@ -38,6 +38,7 @@ import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
+from jax.extend.core import jaxpr_as_fun
 from jax.flatten_util import ravel_pytree
 
 from mara_mjx.envs.batched import BatchedEnv, BatchedState
@@ -391,15 +392,23 @@ def make_train(
 
     def run(state: RunnerState, num_updates: jax.Array) -> tuple[RunnerState, dict]:
         """min(num_updates, updates_per_call) updates in one lax.scan; the remaining
-        iterations skip (lax.cond), so any n runs through one compiled program."""
-        shapes = jax.eval_shape(update, state)[1]
+        iterations skip (lax.cond), so any n runs through one compiled program. `update` is
+        traced once, its jaxpr giving both skip's shapes and the cond's branch (tracing it
+        is most of run's trace: tracing it again for the cond cost 1-2 s of each cold start
+        on CPU)."""
+        jaxpr, out = jax.make_jaxpr(update, return_shape=True)(state)
+        shapes, out_tree = out[1], jax.tree.structure(out)
+
+        def traced_update(state: RunnerState):
+            flat = jaxpr_as_fun(jaxpr)(*jax.tree.leaves(state))
+            return jax.tree.unflatten(out_tree, flat)
 
         def skip(state: RunnerState):
             nan = {k: jnp.full(v.shape, jnp.nan, v.dtype) for k, v in shapes.items()}
             return state, {**nan, "valid": jnp.array(False)}
 
         def body(state: RunnerState, i: jax.Array):
-            return jax.lax.cond(i < num_updates, update, skip, state)
+            return jax.lax.cond(i < num_updates, traced_update, skip, state)
 
         state, metrics = jax.lax.scan(body, state, jnp.arange(updates_per_call))
         if curriculum.probe_reach_steps > 0:  # the saved policy from the reset, on the last row
