@@ -346,13 +346,9 @@ PRESETS: dict[str, TrainConfig] = {
     ),
 }
 
-# The random-target tasks (issue 12): the default with staggered first episodes. With one
-# target, the synchronised episodes of the default still train (section 12's recipe was
-# tuned with them); with a new target every episode, the updates that see the reach (one
-# in max_episode_steps / num_steps = 32) were too few and training collapsed on some seeds
-# (benchmarks/NOTES.md section 19: 37-60% of held-out poses within 5 mm without it,
-# 99.9% with it). `python -m mara_mjx.train` picks it for a *RandomTarget env when no
-# --preset is given.
+# The default with staggered first episodes (issue 12): with a new target every episode,
+# synchronised episodes left too few updates that see the reach and training collapsed on
+# some seeds (benchmarks/NOTES.md section 19). The learnt step alone on random targets.
 PRESETS["random_target"] = PRESETS["default"].replace(stagger_episodes=True)
 # The same on MARACollision (benchmarks/NOTES.md section 27: position worst 2.17 mm per
 # axis against the default's 4.64). Not on MARA: one seed of five held its pose colliding.
@@ -361,23 +357,17 @@ PRESETS["staggered"] = PRESETS["random_target"]
 # a plain network 4x as wide (256 x 256), staggering, no IK deployed (mara_mjx.ppo.teacher).
 PRESETS["distill"] = PRESETS["random_target"].replace(hidden_sizes=(256, 256))
 
-# MARA, the train CLI's choice there (issue 11, benchmarks/NOTES.md sections 27-28): the
-# default's training, its last 6 cm the IK step's (ik_finish): the default's policies
-# enter the 5 mm box up to 3.73 mm off per axis (10 seeds), with the finish 15 fresh seeds
-# at most 0.25 mm (benchmarks/results/paper_table/). Both export formats keep the finish.
+# MARA, the train CLI's choice there (benchmarks/NOTES.md sections 27-28 and 52): the
+# default's training, its last 6 cm the IK step's (ik_finish), in both export formats.
 PRESETS["ik_finish"] = PRESETS["default"].replace(ik_finish=0.06)
-# MARACollision, the train CLI's choice there: `staggered` with the same finish (its
-# policies, 5 seeds: worst 2.17 mm per axis without it, 0.68 mm with it; 10 fresh seeds
-# with it: 0.17 mm; no collision).
+# MARACollision, the train CLI's choice there: `staggered` with the same finish.
 PRESETS["staggered_ik_finish"] = PRESETS["staggered"].replace(ik_finish=0.06)
 
 # The random-target tasks with an orientation (issue 12, benchmarks/NOTES.md sections
-# 23-24): random_target, a soft joint-limit penalty during training (every default policy
-# pinned joint 4 at its stop), and an actor that learns a correction to a damped-least-
-# squares IK step toward the observed pose (ik_prior residual), faded out within ~10 cm
-# of the target and while the step turns the flange the long way round past its limit
-# (ik_gate, ik_wrap, ik_gate_wrap), so that the IK step's Newton convergence finishes the
-# reach. Its policies need the arm's Jacobian: .onnx traces them, no .npz export.
+# 23-24): random_target, a soft joint-limit penalty during training, and an actor that
+# learns a correction to a damped-least-squares IK step toward the observed pose (ik_prior
+# residual), faded out within ~10 cm of the target and while the step turns the flange the
+# long way round (ik_gate, ik_wrap, ik_gate_wrap). .onnx export only (the arm's Jacobian).
 PRESETS["random_target_orient"] = PRESETS["random_target"].replace(
     total_timesteps=120_000_000,
     train_limit_penalty=1.0,
@@ -390,23 +380,19 @@ PRESETS["random_target_orient"] = PRESETS["random_target"].replace(
 
 # MARACollisionOrientRandomTarget, the train CLI's choice there (benchmarks/NOTES.md
 # sections 47-49): the same training, deploying the plan (plan_steps) and its restarts
-# from 16 other postures where the own landing misses (plan_starts; 8 left two of 48
-# seeds short, which 16 reach). MARAOrientRandomTarget keeps random_target_orient.
+# from 16 other postures where the own landing misses (plan_starts).
 PRESETS["random_target_orient_plan"] = PRESETS["random_target_orient"].replace(
     plan_steps=16,
     plan_starts=16,
 )
 
 # MARARandomTarget, the train CLI's choice there (benchmarks/NOTES.md section 53): the same
-# machinery (the IK residual, the plan and its 16 restarts) at the default's 5e7 env steps.
-# On 16 fresh seeds every seed put >= 99.9% of 1,000 held-out poses within 1 mm, where
-# `random_target` (the learnt step alone) failed 9 of 16 (worst seed 49% within 5 mm).
+# at the default's 5e7 env steps; 16 fresh seeds >= 99.9% within 1 mm (random_target: 9 fail).
 PRESETS["random_target_plan"] = PRESETS["random_target_orient_plan"].replace(
     total_timesteps=PRESETS["default"].ppo.total_timesteps,
 )
-# MARACollisionRandomTarget, the train CLI's choice there: the same with orient_first's
-# deployed 5-mm collision guard (section 53, the same 16 seeds: 2% of episodes colliding on
-# average without it, worst seed 4.7%; none with it; 100% within 1 mm either way).
+# MARACollisionRandomTarget, the train CLI's choice there: with orient_first's deployed
+# 5-mm collision guard (section 53: no episode colliding, 1.5% without it).
 PRESETS["random_target_plan_guard"] = PRESETS["random_target_plan"].replace(
     collision_guard_mm=5.0,
 )
@@ -418,7 +404,6 @@ PRESETS["random_target_plan_guard"] = PRESETS["random_target_plan"].replace(
 # converged policies drift), two training-only rules (the roll gate, the standoff's loose
 # form), a probe of the saved policy from the reset after every jitted call (the one-step
 # det_error_mm cannot show the orient-first rule) and a deployed 5-mm collision guard.
-# Measured: README's table (benchmarks/results/robustness/). .onnx export only.
 PRESETS["orient_first"] = PRESETS["random_target_orient"].replace(
     total_timesteps=PRESETS["default"].ppo.total_timesteps,
     ik_orient_first=True,
@@ -447,10 +432,8 @@ def default_preset(env_name: str) -> str:
     }.get(env_name, "default")
 
 
-# A laptop CPU (2 cores): the default with 256 envs x 16 steps, 4 minibatches, a higher
-# learning rate and a narrower initial policy (sigma e^-1 = 0.37 rad instead of 1 rad),
-# which takes ~50x fewer env steps to 5 mm than the default's 31 M (MARA, measured on a
-# 2-core CPU: benchmarks/results/cpu/, benchmarks/NOTES.md "A CPU recipe").
+# A laptop CPU (2 cores): 256 envs x 16 steps, a higher learning rate and a narrower initial
+# policy: ~50x fewer env steps to 5 mm than the default (benchmarks/results/cpu/).
 PRESETS["cpu"] = PRESETS["default"].replace(
     num_envs=256,
     num_steps=16,
@@ -458,8 +441,7 @@ PRESETS["cpu"] = PRESETS["default"].replace(
     learning_rate=1e-3,
     init_log_std=-1.0,
     total_timesteps=3_000_000,
-    # as measured (benchmarks/results/cpu/): without the orientation fixes of the GPU
-    # default (not yet measured on the CPU recipe)
+    # as measured: without the GPU default's orientation fixes
     canonical_quat=False,
     bound_coef=0.0,
     train_collision_penalty=0.0,
