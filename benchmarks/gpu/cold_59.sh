@@ -1,0 +1,36 @@
+#!/bin/bash
+# Issue 35's cold start on the GPU, in one run (NOTES section 53): `python -m
+# mara_mjx.benchmark tta --parts tta` (MARACollisionOrient, its CLI default; seeds
+# 1000-1002, each cold with an empty compilation cache and then warm) for three packages,
+# alternating, two rounds:
+#   before   sweep_in/before: main before commit ac8d6a3 (`update` traced twice);
+#   main     this tree (`run` traces `update` once; bitwise the same as before on the CPU);
+#   guardmap sweep_in/guardmap: branch cold-start-guard-map (also keep_clear's clearances
+#            in one lax.map: a third of run's compile on the CPU, but not bitwise inside
+#            the program at 4 envs; the state hashes in the study's table say what the GPU does).
+# Made here (ignored by git; carry sweep_in):
+#   rm -rf sweep_in/before sweep_in/guardmap && mkdir -p sweep_in/before sweep_in/guardmap
+#   git archive ac8d6a3~1 mara_mjx assets | tar -x -C sweep_in/before
+#   git archive cold-start-guard-map mara_mjx assets | tar -x -C sweep_in/guardmap
+# Run it alone on the GPU (timings). Launch with setsid, follow with poll.sh.
+# QUICK=1: the study's tiny CPU settings.
+cd "$(dirname "$0")/../.."
+. benchmarks/gpu/lib.sh
+rm -f /tmp/res/studies.log /tmp/res/sent
+site=${SITE-/tmp/site}
+one() {  # NAME PACKAGE_ROOT (run from it: `python -m` puts the working folder first on
+  # sys.path, and the train commands the study launches inherit both)
+  (cd $2 && PYTHONPATH=$site:$2 python -m mara_mjx.benchmark tta --parts tta \
+    --seeds 1000 1001 1002 ${QUICK:+--quick} --out /tmp/res/$1 > /tmp/res/$1.log 2>&1)
+  echo "$1 DONE $?" >> /tmp/res/studies.log
+  pack $1
+}
+for d in before guardmap; do
+  [ -d sweep_in/$d/mara_mjx ] || { echo "no sweep_in/$d/mara_mjx" >> /tmp/res/studies.log; echo DRIVER_DONE >> /tmp/res/studies.log; exit 1; }
+done
+for round in 1 2; do
+  one tta_before_$round $PWD/sweep_in/before
+  one tta_main_$round $PWD
+  one tta_guardmap_$round $PWD/sweep_in/guardmap
+done
+echo DRIVER_DONE >> /tmp/res/studies.log
