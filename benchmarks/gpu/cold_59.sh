@@ -5,13 +5,15 @@
 # alternating, two rounds:
 #   before   sweep_in/before: main before commit ac8d6a3 (`update` traced twice);
 #   main     this tree (`run` traces `update` once; bitwise the same as before on the CPU);
-#   guardmap sweep_in/guardmap: branch cold-start-guard-map (also keep_clear's clearances
-#            in one lax.map: a third of run's compile on the CPU, but not bitwise inside
-#            the program at 4 envs; the state hashes in the study's table say what the GPU does).
+#   guardmap sweep_in/guardmap: this tree with guard_map.patch (branch cold-start-guard-map:
+#            keep_clear's clearances in one lax.map: a third of run's compile on the CPU,
+#            but not bitwise inside the program at 4 envs; the state hashes in the
+#            study's table say what the GPU does).
 # Made here (ignored by git; carry sweep_in):
 #   rm -rf sweep_in/before sweep_in/guardmap && mkdir -p sweep_in/before sweep_in/guardmap
 #   git archive ac8d6a3~1 mara_mjx assets | tar -x -C sweep_in/before
-#   git archive cold-start-guard-map mara_mjx assets | tar -x -C sweep_in/guardmap
+#   git archive HEAD mara_mjx assets | tar -x -C sweep_in/guardmap
+#   patch -d sweep_in/guardmap -p1 < benchmarks/gpu/guard_map.patch
 # Run it alone on the GPU (timings). Launch with setsid, follow with poll.sh.
 # QUICK=1: the study's tiny CPU settings.
 cd "$(dirname "$0")/../.."
