@@ -11,8 +11,7 @@ horizon, per-axis mean / median / p95 / worst).
         --seeds 0 1 --variants default 'train_reward_until=1.0' \
         --total-timesteps 150000000 --out study.json
 
-Variants: 'default' (the train CLI's preset for the task: 'random_target', or
-'random_target_orient' for the Orient tasks) or
+Variants: 'default' (the train CLI's preset for the task, `ppo.config.default_preset`) or
 'key=value;key=value' overrides of it (JSON values, as orientation_study.py); `--env`
 'key=value;...' EnvConfig overrides (e.g. 'target_table_size=16384') apply to every
 variant.
