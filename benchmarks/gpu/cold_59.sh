@@ -2,7 +2,7 @@
 # Issue 35's cold start on the GPU, in one run (NOTES section 53): `python -m
 # mara_mjx.benchmark tta --parts tta` (MARACollisionOrient, its CLI default; seeds
 # 1000-1002, each cold with an empty compilation cache and then warm) for three packages,
-# alternating, two rounds:
+# alternating (ROUNDS, default 1):
 #   before   sweep_in/before: main before commit ac8d6a3 (`update` traced twice);
 #   main     this tree (`run` traces `update` once; bitwise the same as before on the CPU);
 #   guardmap sweep_in/guardmap: this tree with guard_map.patch (branch cold-start-guard-map:
@@ -20,9 +20,10 @@ cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
 rm -f /tmp/res/studies.log /tmp/res/sent
 site=${SITE-/tmp/site}
-one() {  # NAME PACKAGE_ROOT (run from it: `python -m` puts the working folder first on
-  # sys.path, and the train commands the study launches inherit both)
-  (cd $2 && PYTHONPATH=$site:$2 python -m mara_mjx.benchmark tta --parts tta \
+one() {  # NAME PACKAGE_ROOT COMMIT (run from it: `python -m` puts the working folder first on
+  # sys.path, and the train commands the study launches inherit both; COMMIT is what the
+  # artefacts record as their git commit)
+  (cd $2 && MARA_MJX_GIT_COMMIT=$3 PYTHONPATH=$site:$2 python -m mara_mjx.benchmark tta --parts tta \
     --seeds 1000 1001 1002 ${QUICK:+--quick} --out /tmp/res/$1 > /tmp/res/$1.log 2>&1)
   echo "$1 DONE $?" >> /tmp/res/studies.log
   pack $1
@@ -30,9 +31,10 @@ one() {  # NAME PACKAGE_ROOT (run from it: `python -m` puts the working folder f
 for d in before guardmap; do
   [ -d sweep_in/$d/mara_mjx ] || { echo "no sweep_in/$d/mara_mjx" >> /tmp/res/studies.log; echo DRIVER_DONE >> /tmp/res/studies.log; exit 1; }
 done
-for round in 1 2; do
-  one tta_before_$round $PWD/sweep_in/before
-  one tta_main_$round $PWD
-  one tta_guardmap_$round $PWD/sweep_in/guardmap
+here=${MARA_MJX_GIT_COMMIT:-unknown}
+for round in $(seq 1 ${ROUNDS:-1}); do  # one round: 18 train commands, about 14 min on an H100
+  one tta_before_$round $PWD/sweep_in/before ac8d6a3~1
+  one tta_main_$round $PWD $here
+  one tta_guardmap_$round $PWD/sweep_in/guardmap $here+guard_map.patch
 done
 echo DRIVER_DONE >> /tmp/res/studies.log
