@@ -378,9 +378,9 @@ PRESETS["random_target_orient"] = PRESETS["random_target"].replace(
     ik_gate_wrap=True,
 )
 
-# MARACollisionOrientRandomTarget, the train CLI's choice there (benchmarks/NOTES.md
-# sections 47-49): the same training, deploying the plan (plan_steps) and its restarts
-# from 16 other postures where the own landing misses (plan_starts).
+# The *OrientRandomTarget tasks, the train CLI's choice there (benchmarks/NOTES.md
+# sections 47-49 and 54): the same training, deploying the plan (plan_steps) and its
+# restarts from 16 other postures where the own landing misses (plan_starts).
 PRESETS["random_target_orient_plan"] = PRESETS["random_target_orient"].replace(
     plan_steps=16,
     plan_starts=16,
@@ -415,11 +415,9 @@ PRESETS["orient_first"] = PRESETS["random_target_orient"].replace(
 
 def default_preset(env_name: str) -> str:
     """The preset the train CLI uses for `env_name` when none is given: per task, the one
-    measured best on it (benchmarks/NOTES.md sections 19, 24, 27, 48 and 53)."""
-    if env_name == "MARACollisionOrientRandomTarget":
-        return "random_target_orient_plan"
+    measured best on it (benchmarks/NOTES.md sections 19, 24, 27, 48, 53 and 54)."""
     if env_name.endswith("OrientRandomTarget"):
-        return "random_target_orient"
+        return "random_target_orient_plan"
     if env_name == "MARACollisionRandomTarget":
         return "random_target_plan_guard"
     if env_name.endswith("RandomTarget"):
