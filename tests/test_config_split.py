@@ -109,6 +109,7 @@ ADDED_SINCE_SPLIT = {
     "train_capped_fraction": (0.0, {}),
     "train_capped_step": (0.025, {}),
     "teacher": ("", {}),
+    "imitation_spread": (0.0, {}),
 }
 
 

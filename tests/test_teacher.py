@@ -13,7 +13,7 @@ import mara_mjx
 from mara_mjx.ppo.config import PRESETS
 from mara_mjx.ppo.networks import make_network
 from mara_mjx.ppo.policy import make_policy
-from mara_mjx.ppo.teacher import imitation_loss, teacher_action
+from mara_mjx.ppo.teacher import imitation_loss, rollout_sigma, teacher_action
 from mara_mjx.ppo.train import make_train
 
 TINY = dict(num_envs=16, num_steps=8, num_minibatches=2, update_epochs=2, learning_rate=3e-3)
@@ -33,6 +33,21 @@ def test_imitation_loss_is_the_gaussian_negative_log_likelihood():
     err = jnp.array([[0.1, 0.1]])
     g_std = jax.grad(lambda s: imitation_loss(jnp.zeros((1, 2)), s, err))(jnp.log(err[0]))
     assert np.allclose(g_std, 0.0, atol=1e-6)
+
+
+def test_the_imitation_spread_widens_the_rollouts_noise_env_by_env():
+    """imitation_spread s: env i of N samples with max(sigma, s i / (N - 1)): env 0 with
+    the student's own sigma, the last at s, none below sigma; 0 leaves sigma alone; the
+    config refuses it without a teacher, naming the flag."""
+    log_std = jnp.broadcast_to(jnp.log(jnp.array([0.01, 0.02])), (5, 2))
+    wide = np.asarray(rollout_sigma(log_std, 0.08))
+    np.testing.assert_allclose(wide[:, 0], [0.01, 0.02, 0.04, 0.06, 0.08], rtol=1e-6)
+    np.testing.assert_allclose(wide[:, 1], [0.02, 0.02, 0.04, 0.06, 0.08], rtol=1e-6)
+    np.testing.assert_allclose(rollout_sigma(log_std, 0.0), np.exp(log_std), rtol=1e-6)
+    with pytest.raises(ValueError, match="imitation_spread .*--teacher RUN"):
+        PRESETS["distill"].replace(imitation_spread=0.05)
+    with pytest.raises(ValueError, match="imitation_spread"):
+        PRESETS["distill"].replace(teacher="runs/x", imitation_spread=-0.1)
 
 
 def _teacher(env):
@@ -64,13 +79,16 @@ def test_make_train_needs_the_teacher_and_its_path_together():
 
 
 def test_a_student_learns_its_teachers_actions():
-    """20 updates of imitation on tiny MARA: the student's deterministic action comes
-    closer to the teacher's on the states the student visits, the rollout's noise shrinks
-    toward that error, the teacher itself is never trained, and the state's teacher is the
-    one given."""
+    """20 updates of imitation on tiny MARA, half the envs exploring wider than the
+    student's sigma (imitation_spread): the student's deterministic action comes closer to
+    the teacher's on the states the student visits, its own sigma shrinks toward that
+    error (the spread widens the rollouts, not the loss's sigma), the teacher itself is
+    never trained, and the state's teacher is the one given."""
     env = mara_mjx.make("MARA")
     teacher = _teacher(env)
-    config = PRESETS["distill"].replace(teacher="a fixed network", init_log_std=-1.0, **TINY)
+    config = PRESETS["distill"].replace(
+        teacher="a fixed network", init_log_std=-1.0, imitation_spread=0.8, **TINY
+    )
     trainer = make_train(env, config, updates_per_call=10, teacher=teacher)
     state = trainer.init(jax.random.key(0))
     lower, upper = env.joint_lower, env.joint_upper

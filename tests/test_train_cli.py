@@ -357,8 +357,9 @@ def test_the_preset_follows_the_task_unless_one_is_given():
     """A *RandomTarget position env trains with 'random_target_plan' (the IK residual, the
     plan and its restarts at 5e7 steps; MARACollisionRandomTarget with the collision guard,
     'random_target_plan_guard'), an *OrientRandomTarget one with 'random_target_orient'
-    and its deployed plan and restarts ('random_target_orient_plan'), the fixed Orient tasks with 'orient_first', MARACollision with
-    'staggered_ik_finish' and MARA with 'ik_finish'; --preset and flags win. No compile."""
+    and its deployed plan and restarts ('random_target_orient_plan'), the fixed Orient
+    tasks with 'orient_first', MARACollision with 'staggered_ik_finish' and MARA with
+    'ik_finish'; --preset and flags win. No compile."""
 
     def ppo(*argv):  # the TrainConfig
         return train_cli.resolve(train_cli.build_parser().parse_args([*argv, "--out", "x"])).config

@@ -15,10 +15,11 @@
 #   git archive HEAD mara_mjx assets | tar -x -C sweep_in/guardmap
 #   patch -d sweep_in/guardmap -p1 < benchmarks/gpu/guard_map.patch
 # Run it alone on the GPU (timings). Launch with setsid, follow with poll.sh.
-# QUICK=1: the study's tiny CPU settings.
+# QUICK=1: the study's tiny CPU settings. PACKAGES: which of the three (default all).
+# NO_DRIVER_DONE=1: leave DRIVER_DONE to the caller (one of several drivers in a row).
 cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
-rm -f /tmp/res/studies.log /tmp/res/sent
+[ -n "$KEEP_LOG" ] || rm -f /tmp/res/studies.log /tmp/res/sent
 site=${SITE-/tmp/site}
 one() {  # NAME PACKAGE_ROOT COMMIT (run from it: `python -m` puts the working folder first on
   # sys.path, and the train commands the study launches inherit both; COMMIT is what the
@@ -28,13 +29,19 @@ one() {  # NAME PACKAGE_ROOT COMMIT (run from it: `python -m` puts the working f
   echo "$1 DONE $?" >> /tmp/res/studies.log
   pack $1
 }
-for d in before guardmap; do
+packages=${PACKAGES:-before main guardmap}  # (a subset, e.g. PACKAGES="main guardmap")
+for d in $packages; do
+  [ $d = main ] && continue
   [ -d sweep_in/$d/mara_mjx ] || { echo "no sweep_in/$d/mara_mjx" >> /tmp/res/studies.log; echo DRIVER_DONE >> /tmp/res/studies.log; exit 1; }
 done
 here=${MARA_MJX_GIT_COMMIT:-unknown}
 for round in $(seq 1 ${ROUNDS:-1}); do  # one round: 18 train commands, about 14 min on an H100
-  one tta_before_$round $PWD/sweep_in/before ac8d6a3~1
-  one tta_main_$round $PWD $here
-  one tta_guardmap_$round $PWD/sweep_in/guardmap $here+guard_map.patch
+  for d in $packages; do
+    case $d in
+      before) one tta_before_$round $PWD/sweep_in/before ac8d6a3~1 ;;
+      main) one tta_main_$round $PWD $here ;;
+      guardmap) one tta_guardmap_$round $PWD/sweep_in/guardmap $here+guard_map.patch ;;
+    esac
+  done
 done
-echo DRIVER_DONE >> /tmp/res/studies.log
+[ -n "$NO_DRIVER_DONE" ] || echo DRIVER_DONE >> /tmp/res/studies.log

@@ -169,6 +169,10 @@ class CurriculumConfig(_ConfigMixin):
     """Imitation instead of reward: a run (folder or checkpoint) of the same task whose
     deployed policy this run learns on the states it visits (`mara_mjx.ppo.teacher`); with
     --seeds, a teacher run of several seeds teaches seed s its seed s. '' is off."""
+    imitation_spread: float = 0.0
+    """With teacher: the rollouts' noise, env i of N at least imitation_spread * i / (N - 1)
+    rad (`mara_mjx.ppo.teacher.rollout_sigma`): states from the teacher's path to well
+    off it; the loss keeps the student's own sigma. 0 is off."""
 
     def __post_init__(self):
         _check_range("bound_coef", self.bound_coef, 0.0, math.inf)
@@ -200,6 +204,10 @@ class CurriculumConfig(_ConfigMixin):
         _check_int("probe_reach_steps", self.probe_reach_steps, minimum=0)
         if not isinstance(self.teacher, str):
             raise ValueError(f"teacher must be a path string ('' for none), got {self.teacher!r}")
+        _check_range("imitation_spread", self.imitation_spread, 0.0, math.pi)
+        if self.imitation_spread > 0.0 and not self.teacher:
+            raise ValueError("imitation_spread widens an imitation run's rollouts: give "
+                             "--teacher RUN, or set imitation_spread 0")  # fmt: skip
         if self.teacher and self.population > 1:  # the exploit step ranks by reward
             raise ValueError("teacher (imitation) and population > 1 do not combine")
         if not isinstance(self.stagger_episodes, bool):
@@ -312,13 +320,6 @@ def orientation_bonus(metrics: dict[str, jax.Array], config: CurriculumConfig) -
     if "collided" in metrics:
         bonus = jnp.where(metrics["collided"] > 0, 0.0, bonus)
     return bonus
-
-
-def bound_loss(mean: jax.Array, lower: jax.Array, upper: jax.Array) -> jax.Array:
-    """E[sum_j relu(mean_j - upper_j)^2 + relu(lower_j - mean_j)^2] (rad^2): the loss
-    CurriculumConfig.bound_coef weighs."""
-    excess = jax.nn.relu(mean - upper) + jax.nn.relu(lower - mean)
-    return jnp.mean(jnp.sum(jnp.square(excess), axis=-1))
 
 
 PROBE_REACH_EPISODES = 4

@@ -113,3 +113,10 @@ def ppo_loss(
         clip_frac=jnp.mean((jnp.abs(ratio - 1.0) > clip_eps).astype(jnp.float32)),
     )
     return total, info
+
+
+def bound_loss(mean: jax.Array, lower: jax.Array, upper: jax.Array) -> jax.Array:
+    """E[sum_j relu(mean_j - upper_j)^2 + relu(lower_j - mean_j)^2] (rad^2): the loss
+    CurriculumConfig.bound_coef weighs."""
+    excess = jax.nn.relu(mean - upper) + jax.nn.relu(lower - mean)
+    return jnp.mean(jnp.sum(jnp.square(excess), axis=-1))

@@ -109,3 +109,17 @@ def imitation_loss(mean: jax.Array, log_std: jax.Array, target: jax.Array) -> ja
 def teacher_action(teacher: Policy, obs: jax.Array, lower: Any, upper: Any) -> jax.Array:
     """The teacher's deployed action for raw observations, clipped to the joint box."""
     return jnp.clip(teacher(obs), lower, upper)
+
+
+def rollout_sigma(log_std: jax.Array, spread: float) -> jax.Array:
+    """The imitation rollouts' noise (CurriculumConfig.imitation_spread): per env i of the
+    N rows of `log_std` (N, A), max(exp(log_std), spread * i / (N - 1)): env 0 samples with
+    the student's own sigma, env N - 1 at least `spread` rad, a continuum between (the
+    last millimetres of the teacher's path and the states well off it, both visited; a
+    single wide floor loses the first: benchmarks/NOTES.md section 54)."""
+    sigma = jnp.exp(log_std)
+    if spread <= 0.0:
+        return sigma
+    n = log_std.shape[0]
+    ramp = jnp.arange(n, dtype=sigma.dtype) / max(n - 1, 1)
+    return jnp.maximum(sigma, spread * ramp[:, None])

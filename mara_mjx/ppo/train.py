@@ -43,8 +43,8 @@ from jax.flatten_util import ravel_pytree
 
 from mara_mjx.envs.batched import BatchedEnv, BatchedState
 from mara_mjx.ppo.config import PPOConfig, TrainConfig, for_env
-from mara_mjx.ppo.curriculum import bound_loss, capped_envs, make_schedule, reach_probe
-from mara_mjx.ppo.losses import gae, ppo_loss
+from mara_mjx.ppo.curriculum import capped_envs, make_schedule, reach_probe
+from mara_mjx.ppo.losses import bound_loss, gae, ppo_loss
 from mara_mjx.ppo.members import population
 from mara_mjx.ppo.metrics import probe_metric_summary, rollout_metrics
 from mara_mjx.ppo.networks import (
@@ -59,7 +59,7 @@ from mara_mjx.ppo.networks import (
     update_stats,
 )
 from mara_mjx.ppo.optim import make_lr_schedule, make_optimizer, stratified_minibatches
-from mara_mjx.ppo.teacher import imitation_loss, teacher_action
+from mara_mjx.ppo.teacher import imitation_loss, rollout_sigma, teacher_action
 from mara_mjx.runtime import sharding
 
 
@@ -201,12 +201,15 @@ def make_train(
     ) -> tuple[BatchedState, Transition, dict[str, jax.Array]]:
         """num_steps sampled steps, then the deterministic probe step (state discarded)."""
 
+        spread = curriculum.imitation_spread if teacher is not None else 0.0
+
         def step(carry, t):
             env_state, key = carry
             key, noise_key = jax.random.split(key)
             ik = ik_inputs(network, env_state.obs)  # once per sample (the IK step: ik_prior)
             mean, log_std, _ = policy(params, stats, env_state.obs, ik)
-            sample = mean + jnp.exp(log_std) * jax.random.normal(noise_key, mean.shape)
+            sigma = rollout_sigma(log_std, spread)  # imitation may widen it
+            sample = mean + sigma * jax.random.normal(noise_key, mean.shape)
             probe = t == config.num_steps
             probe_mean = mean
             if network != saved:  # training-only parts: the probe measures the saved

@@ -1,0 +1,41 @@
+#!/bin/bash
+# Issue 31, the learnt policy alone (NOTES section 54), then issue 35's cold start:
+#   1. students of MARAOrient and MARACollisionOrient (seeds 1504-1519, the same teachers as
+#      studies 52 and 60: sweep_in/teach_mao_small.tgz and teach_mco_small.tgz, made with
+#      benchmarks/strip_teacher.py) with `--imitation_spread 0.05` (env i of N explores at
+#      least 0.05 i / (N - 1) rad; the loss keeps the student's own sigma): the lost
+#      episodes of study 52's students and the 2-4 mm stops of study 60's, both gone?
+#      Sharing GPU 0 (a GPU each where the host has two or more); the students'
+#      checkpoints come back stripped (ck_sp_TASK.tgz: params only, enough to evaluate).
+#   2. `cold_59.sh` with PACKAGES="main guardmap", alone on the GPU after the students
+#      (beside them on GPU 2 where the host has three or more). Needs sweep_in/guardmap
+#      (cold_59.sh's header: made from this commit and guard_map.patch).
+#   setsid nohup bash benchmarks/gpu/next_61.sh > /tmp/res_driver.log 2>&1 < /dev/null & disown
+# then `bash benchmarks/gpu/poll.sh 530` in the next calls, back to back, until DRIVER_DONE.
+# Carry .whl, SOURCE_COMMIT and sweep_in/{teach_mao_small.tgz,teach_mco_small.tgz,guardmap}.
+# QUICK=1: the studies' tiny CPU settings, for a check before a GPU call.
+cd "$(dirname "$0")/../.."
+. benchmarks/gpu/lib.sh
+rm -f /tmp/res/studies.log /tmp/res/sent
+export KEEP_LOG=1
+n=$(nvidia-smi -L 2>/dev/null | wc -l)
+[ "$n" -ge 1 ] || n=1
+gpu() { echo $(( $1 % n )); }  # stream i's GPU
+student() {  # TASK SHORT
+  local t=$1 teach=/tmp/work/teach_$2 work=/tmp/work/sp_$1
+  mkdir -p $teach && tar xzf sweep_in/teach_$2_small.tgz -C $teach || { echo "teacher $2 FAILED" >> /tmp/res/studies.log; return; }
+  robust sp_$t $work $t "distill --teacher $teach --imitation_spread 0.05" --seed_offset 1504
+  keep "$(ls -dt $work/runs/$t-distill-*/ | head -1)" $work/ck_full.tgz \
+    && python benchmarks/strip_teacher.py $work/ck_full.tgz /tmp/res/ck_sp_$t.tgz.part \
+    && mv /tmp/res/ck_sp_$t.tgz.part /tmp/res/ck_sp_$t.tgz
+}
+(export CUDA_VISIBLE_DEVICES=$(gpu 0); student MARAOrient mao) &
+(export CUDA_VISIBLE_DEVICES=$(gpu 1); student MARACollisionOrient mco) &
+if [ "$n" -ge 3 ]; then
+  (export CUDA_VISIBLE_DEVICES=2 NO_DRIVER_DONE=1 PACKAGES="main guardmap"; bash benchmarks/gpu/cold_59.sh) &
+  wait
+else
+  wait
+  NO_DRIVER_DONE=1 PACKAGES="main guardmap" bash benchmarks/gpu/cold_59.sh
+fi
+echo DRIVER_DONE >> /tmp/res/studies.log
