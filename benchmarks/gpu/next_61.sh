@@ -3,8 +3,11 @@
 #   1. students of MARAOrient and MARACollisionOrient (seeds 1504-1519, the same teachers as
 #      studies 52 and 60: sweep_in/teach_mao_small.tgz and teach_mco_small.tgz, made with
 #      benchmarks/strip_teacher.py) with `--imitation_spread 0.05` (env i of N explores at
-#      least 0.05 i / (N - 1) rad; the loss keeps the student's own sigma): the lost
-#      episodes of study 52's students and the 2-4 mm stops of study 60's, both gone?
+#      least 0.05 i / (N - 1) rad; the loss keeps the student's own sigma: for study 60's
+#      slow closed loop near the target, NOTES section 55) and `--reset_noise 0.02` (the
+#      episodes start as the paper's evaluation starts them: for the first steps the
+#      students got wrong from noisy starts, section 55): the lost episodes of study 52's
+#      students and the 2-4 mm stops of study 60's, both gone?
 #      Sharing GPU 0 (a GPU each where the host has two or more); the students'
 #      checkpoints come back stripped (ck_sp_TASK.tgz: params only, enough to evaluate).
 #   2. `cold_59.sh` with PACKAGES="main guardmap", alone on the GPU after the students
@@ -24,7 +27,7 @@ gpu() { echo $(( $1 % n )); }  # stream i's GPU
 student() {  # TASK SHORT
   local t=$1 teach=/tmp/work/teach_$2 work=/tmp/work/sp_$1
   mkdir -p $teach && tar xzf sweep_in/teach_$2_small.tgz -C $teach || { echo "teacher $2 FAILED" >> /tmp/res/studies.log; return; }
-  robust sp_$t $work $t "distill --teacher $teach --imitation_spread 0.05" --seed_offset 1504
+  robust sp_$t $work $t "distill --teacher $teach --imitation_spread 0.05 --reset_noise 0.02" --seed_offset 1504
   keep "$(ls -dt $work/runs/$t-distill-*/ | head -1)" $work/ck_full.tgz \
     && python benchmarks/strip_teacher.py $work/ck_full.tgz /tmp/res/ck_sp_$t.tgz.part \
     && mv /tmp/res/ck_sp_$t.tgz.part /tmp/res/ck_sp_$t.tgz
