@@ -15,7 +15,8 @@
 #      (cold_59.sh's header: made from this commit and guard_map.patch).
 #   setsid nohup bash benchmarks/gpu/next_61.sh > /tmp/res_driver.log 2>&1 < /dev/null & disown
 # then `bash benchmarks/gpu/poll.sh 530` in the next calls, back to back, until DRIVER_DONE.
-# Carry .whl, SOURCE_COMMIT and sweep_in/{teach_mao_small.tgz,teach_mco_small.tgz,guardmap}.
+# Carry .whl, SOURCE_COMMIT and sweep_in/{teach_mao_small.tgz,teach_mco_small.tgz,guardmap}
+# (a teacher archive not carried: its teachers trained first, the CLI default on 1504).
 # QUICK=1: the studies' tiny CPU settings, for a check before a GPU call.
 cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
@@ -26,7 +27,14 @@ n=$(nvidia-smi -L 2>/dev/null | wc -l)
 gpu() { echo $(( $1 % n )); }  # stream i's GPU
 student() {  # TASK SHORT
   local t=$1 teach=/tmp/work/teach_$2 work=/tmp/work/sp_$1
-  mkdir -p $teach && tar xzf sweep_in/teach_$2_small.tgz -C $teach || { echo "teacher $2 FAILED" >> /tmp/res/studies.log; return; }
+  if [ -f sweep_in/teach_$2_small.tgz ]; then
+    mkdir -p $teach && tar xzf sweep_in/teach_$2_small.tgz -C $teach || { echo "teacher $2 FAILED" >> /tmp/res/studies.log; return; }
+  else  # not carried: train them (the CLI default on these seeds; on an H200 bitwise
+    # study 52's and 60's, NOTES section 54), judged as the row they are
+    robust sp_${t}_cli $work $t cli --seed_offset 1504
+    teach=$(ls -d $work/runs/$t-cli-*/ | head -1)
+    teach=${teach%/}
+  fi
   robust sp_$t $work $t "distill --teacher $teach --imitation_spread 0.05 --reset_noise 0.02" --seed_offset 1504
   keep "$(ls -dt $work/runs/$t-distill-*/ | head -1)" $work/ck_full.tgz \
     && python benchmarks/strip_teacher.py $work/ck_full.tgz /tmp/res/ck_sp_$t.tgz.part \
