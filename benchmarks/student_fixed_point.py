@@ -1,9 +1,10 @@
 """Where a student (`--preset distill`) settles near the target, and why: per seed of a
-student run, at the target's joints q_t (where the teacher settles: its deterministic
-policy from the reset, train driver, 60 steps), the student's step there b = F(q_t) - q_t,
-the eigenvalues of its closed loop's Jacobian dF/dq (0: back in one step, as the IK
-teacher; 1: no correction), and the linear fixed point q_t + (I - dF/dq)^-1 b as the TCP's
-offset per axis (mm), beside the study's hold error where a robustness report is given.
+student run, at the target's joints q_t (where that seed's teacher settles: its
+deterministic policy from the reset, train driver, 60 steps), the student's step there
+b = F(q_t) - q_t, the eigenvalues of its closed loop's Jacobian dF/dq (0: back in one
+step, as the IK teacher; 1: no correction), and the linear fixed point
+q_t + (I - dF/dq)^-1 b as the TCP's offset per axis (mm), beside the study's hold error
+where a robustness report is given.
 F(q) is the deterministic policy at joints q, zero velocity, the task's default target.
 
     python benchmarks/student_fixed_point.py STUDENT_RUN TEACHER_RUN [--report robustness.json]
@@ -46,7 +47,12 @@ def main() -> None:
         opener = gzip.open if a.report.suffix == ".gz" else open
         with opener(a.report, "rt") as f:
             records = {r["seed"]: r for r in json.load(f)["records"] if r["kind"] == "seed"}
-    teacher, meta = load(a.teacher / f"seed_{seeds[0]}")
+
+    def teacher_of(seed):  # student seed s learned from the teacher run's seed_s
+        folder = a.teacher / f"seed_{seed}"
+        return load(folder if folder.is_dir() else a.teacher)
+
+    _, meta = teacher_of(seeds[0])
     env = runs.make_env(meta)
     params = env.make_params(reset_noise=0.0)
 
@@ -54,17 +60,16 @@ def main() -> None:
         pose = env.arm.pose_with(q, env.kinematics, collide=False)
         return env._observe(q, pose, jnp.zeros(6), params)[0]
 
-    state = env.reset(jax.random.key(0), params)
-    step = jax.jit(lambda s: env.step(s, teacher(s.obs)))
-    for _ in range(60):
-        state = step(state)
-    q_t = state.obs[:6]
-    print(
-        f"q_t (the teacher's settled joints): {np.asarray(q_t).round(4)}, "
-        f"TCP error {np.asarray(1000 * obs(q_t)[6:9]).round(4)} mm"
-    )
+    def settled(teacher):  # the teacher's joints after 60 steps from the reset
+        state = env.reset(jax.random.key(0), params)
+        step = jax.jit(lambda s: env.step(s, teacher(s.obs)))
+        for _ in range(60):
+            state = step(state)
+        return state.obs[:6]
+
     preds, holds = [], []
     for seed in seeds:
+        q_t = settled(teacher_of(seed)[0])
         student, _ = load(a.student / f"seed_{seed}")
         F = lambda q: student(obs(q))  # noqa: E731
         b = np.asarray(F(q_t) - q_t)
@@ -72,8 +77,9 @@ def main() -> None:
         eig = np.sort(np.abs(np.linalg.eigvals(J)))[::-1][:3]
         dq = np.linalg.solve(np.eye(6) - J, b)
         e = np.abs(1000 * np.asarray(obs(q_t + jnp.asarray(dq, q_t.dtype))[6:9]))
-        line = (f"{seed}: |b| max {np.abs(b).max():.4f} rad, |eig| {eig.round(3)}, "
-                f"linear fixed point {e.round(2)} mm")  # fmt: skip
+        off = np.abs(1000 * np.asarray(obs(q_t)[6:9])).max()  # the teacher's own, ~0
+        line = (f"{seed}: teacher {off:.4f} mm off, |b| max {np.abs(b).max():.4f} rad, "
+                f"|eig| {eig.round(3)}, linear fixed point {e.round(2)} mm")  # fmt: skip
         if seed in records:
             hold = np.array(records[seed]["hold"]["position_mm"])
             preds.append(e), holds.append(hold)

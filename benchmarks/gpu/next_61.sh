@@ -1,7 +1,7 @@
 #!/bin/bash
 # Issue 31, the learnt policy alone (NOTES section 54), then issue 35's cold start:
-#   1. students of MARAOrient and MARACollisionOrient (seeds 1504-1519, the same teachers as
-#      studies 52 and 60: sweep_in/teach_mao_small.tgz and teach_mco_small.tgz, made with
+#   1. students of MARAOrient and MARACollisionOrient (seeds 1504-1519, study 60's teachers,
+#      MARAOrient's bitwise study 52's: sweep_in/teach_mao_small.tgz and teach_mco_small.tgz, made with
 #      benchmarks/strip_teacher.py) with `--imitation_spread 0.05` (env i of N explores at
 #      least 0.05 i / (N - 1) rad; the loss keeps the student's own sigma: for study 60's
 #      slow closed loop near the target, NOTES section 55) and `--reset_noise 0.02` (the
@@ -10,8 +10,8 @@
 #      students and the 2-4 mm stops of study 60's, both gone?
 #      Sharing GPU 0 (a GPU each where the host has two or more); the students'
 #      checkpoints come back stripped (ck_sp_TASK.tgz: params only, enough to evaluate).
-#   2. `cold_59.sh` with PACKAGES="main guardmap", alone on the GPU after the students
-#      (beside them on GPU 2 where the host has three or more). Needs sweep_in/guardmap
+#   2. `cold_59.sh` with PACKAGES="main guardmap", alone on GPU 0 after the students
+#      (timings: nothing else on the host). Needs sweep_in/guardmap
 #      (cold_59.sh's header: made from this commit and guard_map.patch).
 #   setsid nohup bash benchmarks/gpu/next_61.sh > /tmp/res_driver.log 2>&1 < /dev/null & disown
 # then `bash benchmarks/gpu/poll.sh 530` in the next calls, back to back, until DRIVER_DONE.
@@ -42,11 +42,6 @@ student() {  # TASK SHORT
 }
 (export CUDA_VISIBLE_DEVICES=$(gpu 0); student MARAOrient mao) &
 (export CUDA_VISIBLE_DEVICES=$(gpu 1); student MARACollisionOrient mco) &
-if [ "$n" -ge 3 ]; then
-  (export CUDA_VISIBLE_DEVICES=2 NO_DRIVER_DONE=1 PACKAGES="main guardmap"; bash benchmarks/gpu/cold_59.sh) &
-  wait
-else
-  wait
-  NO_DRIVER_DONE=1 PACKAGES="main guardmap" bash benchmarks/gpu/cold_59.sh
-fi
+wait
+CUDA_VISIBLE_DEVICES=0 NO_DRIVER_DONE=1 PACKAGES="main guardmap" bash benchmarks/gpu/cold_59.sh
 echo DRIVER_DONE >> /tmp/res/studies.log

@@ -208,7 +208,8 @@ def make_train(
             key, noise_key = jax.random.split(key)
             ik = ik_inputs(network, env_state.obs)  # once per sample (the IK step: ik_prior)
             mean, log_std, _ = policy(params, stats, env_state.obs, ik)
-            sigma = rollout_sigma(log_std, spread)  # imitation may widen it
+            sigma = rollout_sigma(log_std, spread)  # imitation may widen it (the
+            # Transition's log_prob below stays the student's own: unused by imitation)
             sample = mean + sigma * jax.random.normal(noise_key, mean.shape)
             probe = t == config.num_steps
             probe_mean = mean
