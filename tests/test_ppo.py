@@ -996,8 +996,9 @@ def test_evaluation_rate_limit_uses_the_servo_travel_and_needs_the_real_driver(m
 def test_probe_reach_steps_measures_the_saved_policy_from_the_reset_and_changes_nothing(toy):
     """PPOConfig.probe_reach_steps: a call of `run` ends with the deterministic policy's
     rollout from the reset; `reach_error_mm` is its mean per-axis |e| at the last step, on
-    the call's last valid row (NaN elsewhere); the training itself is bitwise the same."""
-    from mara_mjx.ppo.curriculum import PROBE_REACH_EPISODES
+    the call's last valid row (NaN elsewhere); the training itself is bitwise the same.
+    Apart from `run` (probe_apart), the same numbers."""
+    from mara_mjx.ppo.metrics import PROBE_REACH_EPISODES
     from mara_mjx.ppo.networks import forward
 
     trainer, state = toy
@@ -1020,6 +1021,18 @@ def test_probe_reach_steps_measures_the_saved_policy_from_the_reset_and_changes_
     expected = 1000.0 * float(jnp.mean(s.metrics["position_error"]))
     np.testing.assert_allclose(reach[2], expected, rtol=1e-5)
     assert expected > 1.0  # an untrained policy: the number is not a constant
+    # probe_apart (the train CLI's single runs): run leaves the probe out, Trainer.probe
+    # gives the same column, bitwise, from its own program; a population keeps it in run
+    config = TOY_CONFIG.replace(probe_reach_steps=3)
+    apart = make_train(PointReach(), config, updates_per_call=4, probe_apart=True)
+    apart_state, apart_metrics = apart.run(apart.init(jax.random.key(0)), 3)
+    assert "reach_error_mm" not in apart_metrics and probing.probe is None
+    np.testing.assert_array_equal(np.asarray(apart.probe(apart_state, 3)), reach)
+    same = zip(*map(jax.tree.leaves, (apart_state.params, probe_state.params)), strict=True)
+    for a, b in same:
+        np.testing.assert_array_equal(a, b)
+    members = make_train(PointReach(), config.replace(population=2), 4, probe_apart=True)
+    assert members.probe is None
 
 
 def test_milestones_use_the_reach_probe_where_the_rows_have_it():

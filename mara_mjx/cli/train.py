@@ -122,7 +122,9 @@ def _main(args: argparse.Namespace) -> int:
             # (--seeds: the first seed's, the program's template; seeds.train pairs them all)
             own = None if plan.run.seeds > 1 else plan.config.ppo.seed
             teacher = load_teacher(plan.config.curriculum.teacher, plan.env_name, own)
-        trainer = make_train(env, plan.config, plan.run.updates_per_call, devices, teacher)
+        trainer = make_train(  # a single run's reach probe: its own program (ppo.warmup)
+            env, plan.config, plan.run.updates_per_call, devices, teacher, plan.run.seeds == 1
+        )
     except ValueError as e:
         raise UserError(str(e)) from e
     # env-dependent fields resolved (quat_index): saved with every checkpoint, policies read alike
@@ -188,6 +190,7 @@ def _train(plan: Plan, env: Any, trainer: Trainer, main_process: bool, announce:
                 state = trainer.init(key)
                 if warm is not None:
                     warm.wait("run")
+                    warm.wait("probe")
             if main_process:
                 print(
                     f"{plan.env_name}: {trainer.num_updates} updates of {plan.config.ppo.num_envs} "
@@ -287,6 +290,8 @@ def train_loop(
         n = min(trainer.updates_per_call, trainer.num_updates - done, next_checkpoint - done)
         start = time.monotonic()
         state, metrics = trainer.run(state, n)
+        if trainer.probe is not None:  # the reach probe, apart from run (make_train)
+            metrics = {**metrics, "reach_error_mm": trainer.probe(state, n)}
         metrics = jax.device_get(metrics)
         check_finite(state, metrics, done, n)  # a diverged run stops here, nothing saved
         seconds = time.monotonic() - start

@@ -155,8 +155,10 @@ class CurriculumConfig(_ConfigMixin):
     copies of the best at each exploit step."""
     probe_reach_steps: int = 0
     """> 0: every jitted call of the trainer ends with a deterministic rollout of the
-    policy training saves from the env's reset (PROBE_REACH_EPISODES episodes, reset
-    noise 0.02 rad as the paper's evaluation, this many steps); the mean per-axis |e| at
+    policy training saves from the env's reset (`mara_mjx.ppo.metrics.reach_probe`: 4
+    episodes, reset noise 0.02 rad as the paper's evaluation, this many steps; the train
+    CLI's single runs compile it as its own program beside `run`: `make_train`'s
+    probe_apart); the mean per-axis |e| at
     its last step is the metric `reach_error_mm` (the call's last update's row), which the
     time-to-accuracy records then use instead of `det_error_mm`. The one-step probe of
     `det_error_mm` starts where the sampled policy left each env and cannot show a
@@ -320,29 +322,6 @@ def orientation_bonus(metrics: dict[str, jax.Array], config: CurriculumConfig) -
     if "collided" in metrics:
         bonus = jnp.where(metrics["collided"] > 0, 0.0, bonus)
     return bonus
-
-
-PROBE_REACH_EPISODES = 4
-"""CurriculumConfig.probe_reach_steps: episodes of the probe from the reset."""
-PROBE_REACH_NOISE = 0.02
-"""CurriculumConfig.probe_reach_steps: the probe's reset noise (rad), the paper evaluation's."""
-
-
-def reach_probe(env: Any, policy: Callable[[jax.Array], tuple], steps: int) -> jax.Array:
-    """CurriculumConfig.probe_reach_steps: mean per-axis |e| (mm) of the saved
-    (deterministic) policy (`policy(obs)` -> (mean, ...)) after `steps` steps from the
-    env's reset, PROBE_REACH_EPISODES episodes with the paper's evaluation noise (fixed
-    keys: the same episodes every call)."""
-    noisy = hasattr(getattr(env, "default_params", None), "reset_noise")
-    env_params = env.make_params(reset_noise=PROBE_REACH_NOISE) if noisy else None
-    keys = jax.random.split(jax.random.key(0), PROBE_REACH_EPISODES)
-    env_state = jax.vmap(env.reset, in_axes=(0, None))(keys, env_params)
-
-    def body(env_state, _):
-        return jax.vmap(env.step)(env_state, policy(env_state.obs)[0]), None
-
-    env_state, _ = jax.lax.scan(body, env_state, None, length=steps)
-    return 1000.0 * jnp.mean(env_state.metrics["position_error"])
 
 
 class Schedule(NamedTuple):

@@ -1,10 +1,12 @@
 """What the trainer reports per update: means over the rollout's steps
-(`rollout_metrics`) and the deterministic probe step's accuracy
-(`probe_metric_summary`), the columns of progress.csv (`mara_mjx.ppo.logger`)."""
+(`rollout_metrics`), the deterministic probe step's accuracy (`probe_metric_summary`)
+and the reach probe of the saved policy from the reset (`reach_probe`, `reach_row`:
+CurriculumConfig.probe_reach_steps), the columns of progress.csv (`mara_mjx.ppo.logger`)."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -57,3 +59,33 @@ def probe_metric_summary(m: dict[str, jax.Array]) -> dict[str, jax.Array]:
 
 def num_parameters(params: Any) -> int:
     return sum(math.prod(x.shape) for x in jax.tree.leaves(params))
+
+
+PROBE_REACH_EPISODES = 4
+"""CurriculumConfig.probe_reach_steps: episodes of the probe from the reset."""
+PROBE_REACH_NOISE = 0.02
+"""CurriculumConfig.probe_reach_steps: the probe's reset noise (rad), the paper evaluation's."""
+
+
+def reach_probe(env: Any, policy: Callable[[jax.Array], tuple], steps: int) -> jax.Array:
+    """CurriculumConfig.probe_reach_steps: mean per-axis |e| (mm) of the saved
+    (deterministic) policy (`policy(obs)` -> (mean, ...)) after `steps` steps from the
+    env's reset, PROBE_REACH_EPISODES episodes with the paper's evaluation noise (fixed
+    keys: the same episodes every call)."""
+    noisy = hasattr(getattr(env, "default_params", None), "reset_noise")
+    env_params = env.make_params(reset_noise=PROBE_REACH_NOISE) if noisy else None
+    keys = jax.random.split(jax.random.key(0), PROBE_REACH_EPISODES)
+    env_state = jax.vmap(env.reset, in_axes=(0, None))(keys, env_params)
+
+    def body(env_state, _):
+        return jax.vmap(env.step)(env_state, policy(env_state.obs)[0]), None
+
+    env_state, _ = jax.lax.scan(body, env_state, None, length=steps)
+    return 1000.0 * jnp.mean(env_state.metrics["position_error"])
+
+
+def reach_row(reach: Any, num_updates: Any, rows: int) -> jax.Array:
+    """The `reach_error_mm` column of one call's `rows` metric rows: `reach` on the last
+    valid row (of `num_updates`), NaN on the others (float32, in or out of jit)."""
+    last = jnp.clip(num_updates, 1, rows) - 1
+    return jnp.full(rows, jnp.nan, jnp.float32).at[last].set(reach)

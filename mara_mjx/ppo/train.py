@@ -20,8 +20,8 @@ One update, top to bottom:
      over several devices each device trains on its own envs' samples (see sgd below);
   4. observation statistics merged with the rollout's observations (if normalize_obs); the
      rollout and the loss of this update both used the statistics from before it.
-With `curriculum.probe_reach_steps`, a call of `run` ends with a deterministic rollout of
-the saved policy from the reset (its accuracy once it has had the steps to reach: `reach_error_mm`).
+With `curriculum.probe_reach_steps`, a call ends with the saved policy's deterministic
+rollout from the reset (`reach_error_mm`), in `run` or apart (`Trainer.probe`).
 
 Env step counts never live in a device integer: the host derives them as Python ints from
 the update count (an int32 that stays below 2^31 / (epochs * minibatches), checked in
@@ -43,10 +43,10 @@ from jax.flatten_util import ravel_pytree
 
 from mara_mjx.envs.batched import BatchedEnv, BatchedState
 from mara_mjx.ppo.config import PPOConfig, TrainConfig, for_env
-from mara_mjx.ppo.curriculum import capped_envs, make_schedule, reach_probe
+from mara_mjx.ppo.curriculum import capped_envs, make_schedule
 from mara_mjx.ppo.losses import bound_loss, gae, ppo_loss
 from mara_mjx.ppo.members import population
-from mara_mjx.ppo.metrics import probe_metric_summary, rollout_metrics
+from mara_mjx.ppo.metrics import probe_metric_summary, reach_probe, reach_row, rollout_metrics
 from mara_mjx.ppo.networks import (
     ActorCritic,
     RunningStats,
@@ -74,12 +74,10 @@ class RunnerState:
     key: jax.Array
     update: jax.Array  # () int32, PPO updates done
     # CurriculumConfig.population > 1: (K,) mean training reward per step of each member since
-    # the last exploit step, summed over updates; every other leaf then has a leading
-    # (K,) member axis. None (no leaf) for a single-member run.
+    # the last exploit step, summed over updates; every other leaf has a (K,) member axis.
     fitness: Any = None
     # CurriculumConfig.teacher: the teacher's deployed Policy (never trained; in the state
-    # so that --seeds gives each seed its own and a checkpoint resumes whole). None (no
-    # leaf) without a teacher.
+    # so that --seeds gives each seed its own and a checkpoint resumes whole), else None.
     teacher: Any = None
 
 
@@ -128,6 +126,9 @@ class Trainer(NamedTuple):
     steps_per_update: int
     teacher: Any = None
     """The teacher Policy init puts in the state (CurriculumConfig.teacher), else None."""
+    probe: Callable[[RunnerState, int], jax.Array] | None = None
+    """make_train's probe_apart: probe(state, n) -> the reach_error_mm column of a call of
+    n updates (`metrics.reach_row`), its own program, left out of `run`; else None."""
 
 
 def make_train(
@@ -136,6 +137,7 @@ def make_train(
     updates_per_call: int = 1,
     devices: int | None = None,
     teacher: Any = None,
+    probe_apart: bool = False,
 ) -> Trainer:
     """PPO on `num_envs` copies of `env` (any env BatchedEnv can wrap), over `devices`
     devices (None or 0: all; see mara_mjx.runtime.sharding): environments, rollout and
@@ -143,7 +145,9 @@ def make_train(
     one all-reduce per minibatch. A PPOConfig alone trains the default policy
     parametrisation without curriculum (TrainConfig(ppo=config)). `teacher`: the
     Policy (mara_mjx.ppo.teacher.load_teacher) a run with CurriculumConfig.teacher
-    imitates instead of maximising the reward."""
+    imitates instead of maximising the reward. `probe_apart`: the reach probe in its own
+    program, `Trainer.probe`, run by the caller after `run` (the train CLI compiles the two
+    side by side, ppo.warmup); not with a population (its `run` probes before exploiting)."""
     train_config = for_env(train_config, env)
     config, curriculum = train_config.ppo, train_config.curriculum
     if bool(curriculum.teacher) != (teacher is not None):
@@ -395,17 +399,14 @@ def make_train(
         return new_state, metrics
 
     def run(state: RunnerState, num_updates: jax.Array) -> tuple[RunnerState, dict]:
-        """min(num_updates, updates_per_call) updates in one lax.scan; the remaining
-        iterations skip (lax.cond), so any n runs through one compiled program. `update` is
-        traced once, its jaxpr giving both skip's shapes and the cond's branch (tracing it
-        is most of run's trace: tracing it again for the cond cost 1-2 s of each cold start
-        on CPU)."""
+        """min(num_updates, updates_per_call) updates in one lax.scan, the other iterations
+        skipped (lax.cond): any n in one program. `update` is traced once, its jaxpr giving
+        skip's shapes and the cond's branch (a second trace cost 1-2 s of a CPU cold start)."""
         jaxpr, out = jax.make_jaxpr(update, return_shape=True)(state)
         shapes, out_tree = out[1], jax.tree.structure(out)
 
         def traced_update(state: RunnerState):
-            flat = jaxpr_as_fun(jaxpr)(*jax.tree.leaves(state))
-            return jax.tree.unflatten(out_tree, flat)
+            return jax.tree.unflatten(out_tree, jaxpr_as_fun(jaxpr)(*jax.tree.leaves(state)))
 
         def skip(state: RunnerState):
             nan = {k: jnp.full(v.shape, jnp.nan, v.dtype) for k, v in shapes.items()}
@@ -415,12 +416,16 @@ def make_train(
             return jax.lax.cond(i < num_updates, traced_update, skip, state)
 
         state, metrics = jax.lax.scan(body, state, jnp.arange(updates_per_call))
-        if curriculum.probe_reach_steps > 0:  # the saved policy from the reset, on the last row
-            policy_of = lambda obs: forward(saved, state.params, stats_in_use(state), obs, clip)  # noqa: E731
-            reach = reach_probe(benv.env, policy_of, curriculum.probe_reach_steps)
-            last = jnp.clip(num_updates, 1, updates_per_call) - 1
-            metrics["reach_error_mm"] = jnp.full(updates_per_call, jnp.nan).at[last].set(reach)
+        if probing and not apart:  # the saved policy from the reset, on the last row
+            metrics["reach_error_mm"] = reach_row(probe(state), num_updates, updates_per_call)
         return state, metrics
+
+    def probe(state: RunnerState) -> jax.Array:  # CurriculumConfig.probe_reach_steps
+        policy_of = lambda obs: forward(saved, state.params, stats_in_use(state), obs, clip)  # noqa: E731
+        return reach_probe(benv.env, policy_of, curriculum.probe_reach_steps)
+
+    probing = curriculum.probe_reach_steps > 0  # (the reach probe: in run, or apart)
+    apart = probing and probe_apart and curriculum.population == 1
 
     if curriculum.population > 1:
         if mesh is not None:
@@ -441,4 +446,5 @@ def make_train(
         num_updates=config.num_updates,
         steps_per_update=config.batch_size,
         teacher=teacher,
+        probe=jax.jit(lambda s, n: reach_row(probe(s), n, updates_per_call)) if apart else None,
     )

@@ -9,6 +9,8 @@ with spare cores (a GPU host has many):
   shapes from `jax.eval_shape`; one device) while the main thread
   compiles and runs `init`; the first `trainer.run(state, n)` call then finds the
   executable in the jitted function's cache (no second compile);
+* the reach probe (`Trainer.probe`, where make_train keeps it apart from `run`) in a
+  second thread beside `run`: the two programs compile at once instead of as one;
 * then the evaluation rollout is compiled, for a policy of the final one's shapes,
   while training runs.
 
@@ -72,9 +74,10 @@ def start(
 ) -> Background | None:
     """In one background thread: compile `trainer.run(state, n)` (n a Python int) for
     `state = trainer.init(key)` (stage "run": call `wait("run")` before the first
-    `trainer.run`, so that it does not start a second compile of its own), then, if given,
-    the jitted `evaluate_fn(policy)` (`mara_mjx.ppo.evaluation.make_evaluate`) for
-    `policy = make_policy(state)`. Only on
+    `trainer.run`, so that it does not start a second compile of its own), beside it in a
+    second thread `trainer.probe` where the trainer has one (stage "probe", likewise),
+    then, if given, the jitted `evaluate_fn(policy)`
+    (`mara_mjx.ppo.evaluation.make_evaluate`) for `policy = make_policy(state)`. Only on
     one device (None otherwise: where a sharded state lives is what `init` decides, and a
     guess that differs would compile twice), and with at least `min_cpus` CPU cores (on
     2 cores the two compiles share them and the background trace fights the foreground
@@ -89,12 +92,26 @@ def start(
         # device: `traced`'s init), so the cache key is the later call's
         state = jax.eval_shape(trainer.init, key)
         n = jax.ShapeDtypeStruct((), jax.numpy.int32, weak_type=True)  # a Python int
+        probe = None
+        if trainer.probe is None:
+            done("probe")
+        else:  # the reach probe's own program, compiled beside run's (a third thread)
+            probe = Background("the reach probe", lambda _: _compile_probe(trainer, state, n, done))
         trainer.run.lower(state, n).compile()
         done("run")
+        if probe is not None:
+            probe.wait()
         if evaluate_fn is not None:
             evaluate_fn.lower(make_policy(state)).compile()
 
     return Background("trainer.run and the evaluation", compile_all)
+
+
+def _compile_probe(trainer: Any, state: Any, n: Any, done: Callable[[str], None]) -> None:
+    try:
+        trainer.probe.lower(state, n).compile()
+    finally:  # compiled or not, the first call may go ahead (and compile what is missing)
+        done("probe")
 
 
 def traced(trainer: Any, state: Any, seed: int) -> Any:
