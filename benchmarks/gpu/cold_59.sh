@@ -4,7 +4,8 @@
 # 1000-1002, each cold with an empty compilation cache and then warm) for three packages,
 # alternating (ROUNDS, default 1):
 #   before   sweep_in/before: main before commit ac8d6a3 (`update` traced twice);
-#   main     this tree (`run` traces `update` once; bitwise the same as before on the CPU);
+#   main     this tree (`run` traces `update` once, and the reach probe is its own program,
+#            compiled beside run's: both bitwise the same training as before on the CPU);
 #   guardmap sweep_in/guardmap: this tree with guard_map.patch (branch cold-start-guard-map:
 #            keep_clear's clearances in one lax.map: a third of run's compile on the CPU,
 #            but not bitwise inside the program at 4 envs; the state hashes in the

@@ -10,12 +10,13 @@
 #      students and the 2-4 mm stops of study 60's, both gone?
 #      Sharing GPU 0 (a GPU each where the host has two or more); the students'
 #      checkpoints come back stripped (ck_sp_TASK.tgz: params only, enough to evaluate).
-#   2. `cold_59.sh` with PACKAGES="main guardmap", alone on GPU 0 after the students
-#      (timings: nothing else on the host). Needs sweep_in/guardmap
+#   2. `cold_59.sh` with PACKAGES="main before guardmap", alone on GPU 0 after the students
+#      (timings: nothing else on the host): main now also compiles the reach probe as its
+#      own program beside run's (NOTES section 56). Needs sweep_in/before and sweep_in/guardmap
 #      (cold_59.sh's header: made from this commit and guard_map.patch).
 #   setsid nohup bash benchmarks/gpu/next_61.sh > /tmp/res_driver.log 2>&1 < /dev/null & disown
 # then `bash benchmarks/gpu/poll.sh 530` in the next calls, back to back, until DRIVER_DONE.
-# Carry .whl, SOURCE_COMMIT and sweep_in/{teach_mao_small.tgz,teach_mco_small.tgz,guardmap}
+# Carry .whl, SOURCE_COMMIT and sweep_in/{teach_mao_small.tgz,teach_mco_small.tgz,before,guardmap}
 # (a teacher archive not carried: its teachers trained first, the CLI default on 1504).
 # QUICK=1: the studies' tiny CPU settings, for a check before a GPU call.
 cd "$(dirname "$0")/../.."
@@ -43,5 +44,5 @@ student() {  # TASK SHORT
 (export CUDA_VISIBLE_DEVICES=$(gpu 0); student MARAOrient mao) &
 (export CUDA_VISIBLE_DEVICES=$(gpu 1); student MARACollisionOrient mco) &
 wait
-CUDA_VISIBLE_DEVICES=0 NO_DRIVER_DONE=1 PACKAGES="main guardmap" bash benchmarks/gpu/cold_59.sh
+CUDA_VISIBLE_DEVICES=0 NO_DRIVER_DONE=1 PACKAGES="main before guardmap" bash benchmarks/gpu/cold_59.sh
 echo DRIVER_DONE >> /tmp/res/studies.log
