@@ -145,3 +145,30 @@ def test_swapped_entries_are_traced_again_not_trusted_by_name(env, tmp_path, cap
     assert f"ignoring {path_a}" in err and "first at 'ppo'" in err, err
     assert path_a.read_bytes() != blob_b  # replaced by a's own program
     assert trace_cache.exported_run(a, shapes, tmp_path)[1] == f"loaded {path_a}"
+
+
+def test_the_reach_probe_apart_is_kept_and_loaded_as_run_is(env, tmp_path):
+    """make_train's probe_apart: the reach probe has its own cache file (its own key, and
+    run's key says whether the probe is in run), a warm start loads it without tracing,
+    and cold, warm and plain give the same bits."""
+    config, key = CONFIG.replace(probe_reach_steps=2), jax.random.key(3)
+    first = make_train(env, config, updates_per_call=2, probe_apart=True)
+    shapes = jax.eval_shape(first.init, key)
+    probe_cold, status = trace_cache.exported_probe(first, shapes, tmp_path)
+    assert status.startswith("exported "), status
+    second = make_train(env, config, updates_per_call=2, probe_apart=True)
+    traced = []
+    second = second._replace(probe=lambda *a, p=second.probe: traced.append(1) or p(*a))
+    probe_warm, status = trace_cache.exported_probe(second, shapes, tmp_path)
+    assert status.startswith("loaded ") and traced == [], status
+    state = first.init(key)
+    plain = np.asarray(first.probe(state, 2))
+    assert np.isfinite(plain[1]) and np.isnan(plain[0])
+    np.testing.assert_array_equal(np.asarray(probe_cold(state, 2)), plain)
+    np.testing.assert_array_equal(np.asarray(probe_warm(state, 2)), plain)
+    keys = {
+        trace_cache.key_material(t, shapes, p)
+        for t in (first, trainer(env))
+        for p in ("run", "probe")
+    }
+    assert len(keys) == 4

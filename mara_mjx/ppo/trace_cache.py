@@ -85,8 +85,9 @@ def cache_key(trainer: Any, state: Any) -> str:
     return hashlib.sha256(key_material(trainer, state).encode()).hexdigest()[:32]
 
 
-def key_material(trainer: Any, state: Any) -> str:
-    """JSON of everything the traced program depends on (module docstring)."""
+def key_material(trainer: Any, state: Any, program: str = "run") -> str:
+    """JSON of everything the traced program (`run`, or the reach probe kept apart from
+    it: `probe`) depends on (module docstring)."""
     from mara_mjx.runtime import runs  # here, not at the top: runs imports ppo.checkpoint
 
     leaves, treedef = jax.tree.flatten(state)
@@ -94,6 +95,7 @@ def key_material(trainer: Any, state: Any) -> str:
     env = getattr(batched, "env", batched)
     parts = {
         "format": FORMAT,
+        "program": [program, getattr(trainer, "probe", None) is not None],  # run: probe in it?
         "versions": runs.versions(),  # packages, backend, devices: as every run records
         "jax_config": [
             str(jax.config.jax_default_matmul_precision),
@@ -181,45 +183,19 @@ def exported_run(trainer: Any, state: Any, folder: Path | None) -> tuple[Callabl
     (module docstring) for states shaped like `state` (arrays or ShapeDtypeStructs), and
     'loaded <file>', 'exported <file>', or why plain `trainer.run` is returned instead
     ('off: ...' or 'failed: ...')."""
-    if folder is None:
-        return trainer.run, "off: no compilation cache"
-    if trainer.env.mesh is not None or jax.device_count() != 1:
-        return trainer.run, "off: several devices"
-    try:
-        leaves, treedef = jax.tree.flatten(state)
-        material = key_material(trainer, state)
-        path = Path(folder) / f"{hashlib.sha256(material.encode()).hexdigest()[:32]}.bin"
-        status = f"loaded {path}"
-        try:
-            exported, metric_keys = _unpack(path.read_bytes(), material)
-            _check(exported, leaves, len(metric_keys))
-        except FileNotFoundError:
-            exported, metric_keys = None, []
-        except Exception as e:  # a damaged or foreign file: export again, replace it
-            print(f"mara_mjx: ignoring {path}: {e}", file=sys.stderr)
-            exported = None
-        if exported is None:
-            metric_keys = []
+    leaves, treedef = jax.tree.flatten(state)
+    metric_keys: list[str] = []
 
-            def flat_run(flat: list[jax.Array], n: jax.Array) -> list[jax.Array]:
-                new_state, metrics = trainer.run(jax.tree.unflatten(treedef, flat), n)
-                if not all(isinstance(v, jax.Array) for v in metrics.values()):
-                    raise TypeError("metrics must be a flat dict of arrays")
-                metric_keys[:] = sorted(metrics)
-                return [*jax.tree.leaves(new_state), *(metrics[k] for k in metric_keys)]
+    def flat_run(flat: list[jax.Array], n: jax.Array) -> list[jax.Array]:
+        new_state, metrics = trainer.run(jax.tree.unflatten(treedef, flat), n)
+        if not all(isinstance(v, jax.Array) for v in metrics.values()):
+            raise TypeError("metrics must be a flat dict of arrays")
+        metric_keys[:] = sorted(metrics)
+        return [*jax.tree.leaves(new_state), *(metrics[k] for k in metric_keys)]
 
-            n = jax.ShapeDtypeStruct((), jnp.int32)
-            shapes = [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves]
-            exported = jax.export.export(jax.jit(flat_run))(shapes, n)
-            status = f"exported {path}"
-            try:
-                files.write_atomic(path, _pack(exported, metric_keys, material))
-            except OSError as e:  # train with the program all the same
-                print(f"mara_mjx: cannot write {path}: {e}", file=sys.stderr)
-                status = f"exported (not saved: {e})"
-    except Exception as e:  # never stop training over a cache
-        print(f"mara_mjx: training program not cached ({e})", file=sys.stderr)
-        return trainer.run, f"failed: {e}"
+    exported, status = _load_or_export(trainer, state, folder, "run", flat_run, metric_keys)
+    if exported is None:
+        return trainer.run, status
     count = len(leaves)
 
     def run(state: Any, num_updates: Any) -> tuple[Any, dict[str, jax.Array]]:
@@ -234,15 +210,71 @@ def exported_run(trainer: Any, state: Any, folder: Path | None) -> tuple[Callabl
     return jax.jit(run, in_shardings=(on, None), out_shardings=on, donate_argnums=donate), status
 
 
-def _check(exported: Any, leaves: list, n_metrics: int) -> None:
+def exported_probe(trainer: Any, state: Any, folder: Path | None) -> tuple[Callable, str]:
+    """(probe, status): `trainer.probe` (the reach probe kept apart from `run`, make_train's
+    probe_apart) as `exported_run` keeps `run`: a warm start traces neither."""
+    treedef = jax.tree.structure(state)
+
+    def flat_probe(flat: list[jax.Array], n: jax.Array) -> list[jax.Array]:
+        return [trainer.probe(jax.tree.unflatten(treedef, flat), n)]
+
+    exported, status = _load_or_export(trainer, state, folder, "probe", flat_probe, ["reach"])
+    if exported is None:
+        return trainer.probe, status
+
+    def probe(state: Any, num_updates: Any) -> jax.Array:
+        return exported.call(jax.tree.leaves(state), jnp.asarray(num_updates, jnp.int32))[0]
+
+    return jax.jit(probe, in_shardings=(device_sharding(), None)), status
+
+
+def _load_or_export(
+    trainer: Any, state: Any, folder: Path | None, program: str, flat: Callable, names: list
+) -> tuple[Any, str]:
+    """(the exported `flat(state leaves, n)` read from or written to the cache file of
+    `program`, status), or (None, why not). `names` (the outputs after the state's, as
+    `flat` fills it when traced) is filled from the file when loaded."""
+    if folder is None:
+        return None, "off: no compilation cache"
+    if trainer.env.mesh is not None or jax.device_count() != 1:
+        return None, "off: several devices"
+    try:
+        leaves = jax.tree.leaves(state)
+        material = key_material(trainer, state, program)
+        path = Path(folder) / f"{hashlib.sha256(material.encode()).hexdigest()[:32]}.bin"
+        try:
+            exported, stored = _unpack(path.read_bytes(), material)
+            _check(exported, leaves, stored, program)
+            names[:] = stored
+            return exported, f"loaded {path}"
+        except FileNotFoundError:
+            pass
+        except Exception as e:  # a damaged or foreign file: export again, replace it
+            print(f"mara_mjx: ignoring {path}: {e}", file=sys.stderr)
+        n = jax.ShapeDtypeStruct((), jnp.int32)
+        shapes = [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves]
+        exported = jax.export.export(jax.jit(flat))(shapes, n)
+        status = f"exported {path}"
+        try:
+            files.write_atomic(path, _pack(exported, names, material))
+        except OSError as e:  # train with the program all the same
+            print(f"mara_mjx: cannot write {path}: {e}", file=sys.stderr)
+            status = f"exported (not saved: {e})"
+        return exported, status
+    except Exception as e:  # never stop training over a cache
+        print(f"mara_mjx: {program} program not cached ({e})", file=sys.stderr)
+        return None, f"failed: {e}"
+
+
+def _check(exported: Any, leaves: list, names: list, program: str) -> None:
     """ValueError unless `exported` takes these state leaves and the step count, and
-    returns as many state leaves plus `n_metrics` metrics."""
+    returns (run) the state's leaves and one output per name, or (probe) one per name."""
     want = [(tuple(x.shape), x.dtype) for x in leaves] + [((), jnp.dtype(jnp.int32))]
     got = [(tuple(a.shape), a.dtype) for a in exported.in_avals]
     if got != want:
         raise ValueError("its inputs do not match the training state's shapes and dtypes")
-    if len(exported.out_avals) != len(leaves) + n_metrics:
-        raise ValueError("its outputs do not match the training state and metrics")
+    if len(exported.out_avals) != (len(leaves) if program == "run" else 0) + len(names):
+        raise ValueError(f"its outputs do not match the {program} program's")
 
 
 def device_sharding() -> jax.sharding.Sharding:

@@ -115,10 +115,11 @@ def _compile_probe(trainer: Any, state: Any, n: Any, done: Callable[[str], None]
 
 
 def traced(trainer: Any, state: Any, seed: int) -> Any:
-    """`trainer` with its `run` replaced by the exported program that
-    mara_mjx.ppo.trace_cache keeps beside the compilation cache (loaded on a warm start:
-    no tracing), for `state` or, when None, the state `trainer.init(key(seed))` returns.
-    Prints where the program came from; unchanged where the cache is off."""
+    """`trainer` with its `run` (and its reach probe, where kept apart) replaced by the
+    exported programs that mara_mjx.ppo.trace_cache keeps beside the compilation cache
+    (loaded on a warm start: no tracing), for `state` or, when None, the state
+    `trainer.init(key(seed))` returns. Prints where the programs came from; unchanged
+    where the cache is off."""
     from mara_mjx.ppo import trace_cache
 
     folder = trace_cache.cache_folder()
@@ -130,4 +131,10 @@ def traced(trainer: Any, state: Any, seed: int) -> Any:
     shapes = jax.eval_shape(init, jax.random.key(seed)) if state is None else state
     run, status = trace_cache.exported_run(trainer, shapes, folder)
     print(f"mara_mjx: training program {status}", flush=True)
-    return trainer if run is trainer.run else trainer._replace(init=init, run=run)
+    if run is trainer.run:
+        return trainer
+    probe = trainer.probe
+    if probe is not None:  # kept apart from run (make_train's probe_apart): kept alike
+        probe, status = trace_cache.exported_probe(trainer, shapes, folder)
+        print(f"mara_mjx: reach probe {status}", flush=True)
+    return trainer._replace(init=init, run=run, probe=probe)
