@@ -253,6 +253,7 @@ def test_tta_study_quick(runs):
         assert abs(r["launch_offset_s"]) < 1.0  # the child's start, read from /proc
         assert 0 < r["first_call_s"] <= r["cli_command_time_s"] <= r["command_s"]
         assert r["env_steps_per_s"] > 0 and len(r["state_hash"]) == 16
+        assert len(r["training_hash"]) == 16 and r["training_hash"] != r["state_hash"]
         for mm in (5, 1):  # 64 env steps reach neither
             assert r[f"to_{mm}mm_s"] is None and r[f"to_{mm}mm_env_steps"] is None
     assert len({r["command"].split("--compilation_cache ")[1] for r in (cold, warm)}) == 1
@@ -290,6 +291,7 @@ def test_tta_reads_the_cli_times_on_the_launch_clock(tmp_path):
     assert (r["first_call_s"], r["cli_command_time_s"]) == (4.25, 7.25)
     assert r["env_steps_per_s"] == 200.0  # median of the rows after the first call
     assert r["final_det_error_mm"] == 0.5 and r["state_hash"] is None
+    assert r["training_hash"] is None
     base = {k: 1.0 for k in ("command_s", "cli_command_time_s", "first_call_s")}
     runs = [
         {**base, "seed": i, "env_steps_per_s": 1.0, "to_5mm_s": t5, "to_5mm_env_steps": t5,

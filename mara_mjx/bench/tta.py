@@ -247,7 +247,7 @@ def _print(r: dict[str, Any]) -> None:
         f"{r['part']:7s} seed {r['seed']} {r['cache']:4s} {r['xla_ops']:17s}"
         f" 5 mm at {_secs(r['to_5mm_s'])}, 1 mm at {_secs(r['to_1mm_s'])},"
         f" command {r['command_s']:.1f} s, {_mega(r['env_steps_per_s'])} env steps/s,"
-        f" state {r['state_hash']}",
+        f" state {r['state_hash']}, training {r.get('training_hash')}",
         flush=True,
     )
 
@@ -368,6 +368,7 @@ TTA_TABLE: dict[str, Any] = {
         ("env steps/s", lambda r: _mega(r["env_steps_per_s"])),
         ("final det error (mm)", lambda r: _cell(r.get("final_det_error_mm"), 3)),
         ("state hash", lambda r: r.get("state_hash") or ""),
+        ("training hash", lambda r: r.get("training_hash") or ""),
     ],
     "rows": lambda records: [r for r in records if r["kind"] in ("run", "median")],
     "notes": _notes,
