@@ -25,9 +25,15 @@ site=${SITE-/tmp/site}
 one() {  # NAME PACKAGE_ROOT COMMIT (run from it: `python -m` puts the working folder first on
   # sys.path, and the train commands the study launches inherit both; COMMIT is what the
   # artefacts record as their git commit)
+  rm -rf /tmp/work/$1 && mkdir -p /tmp/work/$1
   (cd $2 && MARA_MJX_GIT_COMMIT=$3 PYTHONPATH=$site:$2 python -m mara_mjx.benchmark tta --parts tta \
-    --seeds 1000 1001 1002 ${QUICK:+--quick} --out /tmp/res/$1 > /tmp/res/$1.log 2>&1)
+    --seeds 1000 1001 1002 ${QUICK:+--quick} --out /tmp/res/$1 --work_dir /tmp/work/$1 > /tmp/res/$1.log 2>&1)
   echo "$1 DONE $?" >> /tmp/res/studies.log
+  # every package's runs hashed by this tree's code, the env state's metrics left out
+  # (`state_hash(training_only=True)`, NOTES section 56; the before package predates it)
+  PYTHONPATH=$site:$PWD python -c "import sys; from pathlib import Path; from mara_mjx.bench.train_command import state_hash as h
+for d in sorted(Path(sys.argv[1]).glob('*/runs/*/')): print(d.name, h(d), h(d, training_only=True))" /tmp/work/$1 > /tmp/res/$1/training_hashes.txt 2>&1
+  rm -rf /tmp/work/$1/*/cache-seed*  # (the caches: gigabytes on a GPU)
   pack $1
 }
 packages=${PACKAGES:-before main guardmap}  # (a subset, e.g. PACKAGES="main guardmap")
