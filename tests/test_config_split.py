@@ -110,7 +110,6 @@ ADDED_SINCE_SPLIT = {
     "train_capped_step": (0.025, {}),
     "teacher": ("", {}),
     "imitation_spread": (0.0, {}),
-    "imitation_relative": (0.0, {}),
 }
 
 

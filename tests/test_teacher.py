@@ -33,12 +33,6 @@ def test_imitation_loss_is_the_gaussian_negative_log_likelihood():
     err = jnp.array([[0.1, 0.1]])
     g_std = jax.grad(lambda s: imitation_loss(jnp.zeros((1, 2)), s, err))(jnp.log(err[0]))
     assert np.allclose(g_std, 0.0, atol=1e-6)
-    # relative r: an error scaled by r / (s + r), s the teacher's largest step |t - q|
-    obs = jnp.array([[0.2, -0.2, 9.0], [0.0, 0.3, 9.0]])  # q = obs[:, :2]: steps 0 and 0.5
-    rel = imitation_loss(mean, log_std, target, obs, relative=0.1)
-    scale = np.array([[1.0], [0.1 / 0.6]])
-    want = np.mean(np.sum(0.5 * (z * scale) ** 2 + np.log(sigma), axis=-1))
-    assert float(rel) == pytest.approx(want, rel=1e-6)
 
 
 def test_the_imitation_spread_widens_the_rollouts_noise_env_by_env():

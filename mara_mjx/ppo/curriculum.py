@@ -171,11 +171,6 @@ class CurriculumConfig(_ConfigMixin):
     """Imitation instead of reward: a run (folder or checkpoint) of the same task whose
     deployed policy this run learns on the states it visits (`mara_mjx.ppo.teacher`); with
     --seeds, a teacher run of several seeds teaches seed s its seed s. '' is off."""
-    imitation_relative: float = 0.0
-    """With teacher: > 0 scales each sample's imitation error by r / (s + r), s the
-    teacher's largest joint step there (`mara_mjx.ppo.teacher.imitation_loss`): errors near
-    the target, where its steps are small, weigh as much as proportionally larger ones
-    far off. 0 is off (absolute errors)."""
     imitation_spread: float = 0.0
     """With teacher: the rollouts' noise, env i of N at least imitation_spread * i / (N - 1)
     rad (`mara_mjx.ppo.teacher.rollout_sigma`): states from the teacher's path to well
@@ -212,11 +207,9 @@ class CurriculumConfig(_ConfigMixin):
         if not isinstance(self.teacher, str):
             raise ValueError(f"teacher must be a path string ('' for none), got {self.teacher!r}")
         _check_range("imitation_spread", self.imitation_spread, 0.0, math.pi)
-        _check_range("imitation_relative", self.imitation_relative, 0.0, math.pi)
-        for name in ("imitation_spread", "imitation_relative"):
-            if getattr(self, name) > 0.0 and not self.teacher:
-                raise ValueError(f"{name} shapes an imitation run: give --teacher RUN, "
-                                 f"or set {name} 0")  # fmt: skip
+        if self.imitation_spread > 0.0 and not self.teacher:
+            raise ValueError("imitation_spread widens an imitation run's rollouts: give "
+                             "--teacher RUN, or set imitation_spread 0")  # fmt: skip
         if self.teacher and self.population > 1:  # the exploit step ranks by reward
             raise ValueError("teacher (imitation) and population > 1 do not combine")
         if not isinstance(self.stagger_episodes, bool):

@@ -98,20 +98,11 @@ def teachers_for_seeds(path: str | Path, env_name: str, seeds: tuple[int, ...]) 
     return jax.tree.map(lambda *x: jnp.stack(x), *policies)
 
 
-def imitation_loss(
-    mean: jax.Array, log_std: jax.Array, target: jax.Array, obs: Any = None, relative: float = 0.0
-) -> jax.Array:
+def imitation_loss(mean: jax.Array, log_std: jax.Array, target: jax.Array) -> jax.Array:
     """Mean over the batch of the Gaussian negative log-likelihood of `target` (the
     teacher's action), constants dropped: sum over joints of 0.5 ((t - mu) / sigma)^2 +
-    log sigma. With `relative` r > 0 (CurriculumConfig.imitation_relative) each sample's
-    error is scaled by r / (s + r), s the teacher's largest joint step there (|t - q|,
-    q = obs[..., :6]): near the target, where the teacher's steps are small, an error
-    weighs as a proportionally larger one far from it (absolute errors alone leave the
-    student's last steps short: benchmarks/NOTES.md section 57)."""
+    log sigma."""
     z = (target - mean) * jnp.exp(-log_std)
-    if relative > 0.0:
-        step = jnp.max(jnp.abs(target - obs[..., : target.shape[-1]]), axis=-1, keepdims=True)
-        z = z * (relative / (step + relative))
     return jnp.mean(jnp.sum(0.5 * jnp.square(z) + log_std, axis=-1))
 
 

@@ -165,7 +165,7 @@ def make_train(
     optimizer = make_optimizer(config)
     lr_at_update = make_lr_schedule(config)
     obs_size = benv.observation_size  # hidden_obs within it: checked by for_env
-    clip, imitation_relative = config.obs_clip, curriculum.imitation_relative
+    clip = config.obs_clip
     schedule = make_schedule(curriculum, env, benv, config.num_updates)
 
     def stats_in_use(state: RunnerState) -> RunningStats | None:
@@ -277,7 +277,7 @@ def make_train(
             normalize_advantages=False,  # done per minibatch over all devices in sgd()
         )
         if mb.teacher_action is not None:  # imitation: the teacher's action, not the reward
-            total = imitation_loss(mean, log_std, mb.teacher_action, mb.obs, imitation_relative)
+            total = imitation_loss(mean, log_std, mb.teacher_action)
             info = info._replace(total=total)
         if curriculum.bound_coef > 0.0:  # keep the mean where the env does not clip it
             total = total + curriculum.bound_coef * bound_loss(mean, lower, upper)
