@@ -23,6 +23,7 @@
 #     14 at once beside a training run: onnxruntime on one thread, the simulator on the GPU), each "cell NAME DONE rc" in studies.log.
 #   driver_start / driver_done: a driver's studies.log cleared and its DRIVER_DONE written,
 #     both skipped under KEEP_LOG=1 (one of several drivers in a row, next_52.sh);
+#   stream_gpu I: stream I's GPU (I mod the host's GPUs), for drivers that share one GPU;
 #   per_gpu FUNC ARG...: FUNC ARG for each ARG, on GPU i mod N (CUDA_VISIBLE_DEVICES), N at
 #     a time (N the GPUs: those of CUDA_VISIBLE_DEVICES where it is set, else the host's;
 #     1 without any), waiting for all;
@@ -113,6 +114,11 @@ loops() {  # NAME LABEL P: every file of /tmp/res/onnx_NAME at both speeds, rand
   done > /tmp/res/jobs_loop_$1
   cells /tmp/res/jobs_loop_$1 $3
   tar czf /tmp/res/cells_loop_$1.tgz.part -C /tmp/res/cells $(cd /tmp/res/cells && ls -d loop_$1_*) && mv /tmp/res/cells_loop_$1.tgz.part /tmp/res/cells_loop_$1.tgz
+}
+stream_gpu() {  # I: the GPU of a driver's stream I, I mod the host's GPU count (0 without any),
+  # so that streams share GPU 0 on a one-GPU machine and spread over several
+  local n=$(nvidia-smi -L 2>/dev/null | wc -l)
+  echo $(( $1 % (n > 0 ? n : 1) ))
 }
 driver_start() { [ -n "$KEEP_LOG" ] || rm -f /tmp/res/studies.log /tmp/res/sent; }
 driver_done() { [ -n "$KEEP_LOG" ] || echo DRIVER_DONE >> /tmp/res/studies.log; }

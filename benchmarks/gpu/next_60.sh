@@ -17,16 +17,13 @@ cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
 rm -f /tmp/res/studies.log /tmp/res/sent
 export KEEP_LOG=1 STUDENT="floor --log_std_floor -3"
-n=$(nvidia-smi -L 2>/dev/null | wc -l)
-[ "$n" -ge 1 ] || n=1
-gpu() { echo $(( $1 % n )); }  # stream i's GPU
 teach=/tmp/work/teach_mco
 mkdir -p $teach && tar xzf sweep_in/teach_mco.tgz -C $teach || { echo "teacher FAILED" >> /tmp/res/studies.log; }
-(export CUDA_VISIBLE_DEVICES=$(gpu 0)
+(export CUDA_VISIBLE_DEVICES=$(stream_gpu 0)
  robust rtp_MARAOrientRandomTarget /tmp/work/rtp_MAORT MARAOrientRandomTarget random_target_orient_plan --seed_offset 1568) &
-(export CUDA_VISIBLE_DEVICES=$(gpu 1)
+(export CUDA_VISIBLE_DEVICES=$(stream_gpu 1)
  robust dt_MARACollisionOrient_floor /tmp/work/dt_MCO MARACollisionOrient "distill --teacher $teach --log_std_floor -3" --seed_offset 1504
  keep "$(ls -dt /tmp/work/dt_MCO/runs/MARACollisionOrient-distill-*/ | head -1)" /tmp/res/ck_dt_MARACollisionOrient_floor.tgz) &
-(export CUDA_VISIBLE_DEVICES=$(gpu 2); bash benchmarks/gpu/distill_51.sh 1504 MARAOrient) &
+(export CUDA_VISIBLE_DEVICES=$(stream_gpu 2); bash benchmarks/gpu/distill_51.sh 1504 MARAOrient) &
 wait
 echo DRIVER_DONE >> /tmp/res/studies.log

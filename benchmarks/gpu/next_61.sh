@@ -23,9 +23,6 @@ cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
 rm -f /tmp/res/studies.log /tmp/res/sent
 export KEEP_LOG=1
-n=$(nvidia-smi -L 2>/dev/null | wc -l)
-[ "$n" -ge 1 ] || n=1
-gpu() { echo $(( $1 % n )); }  # stream i's GPU
 student() {  # TASK SHORT
   local t=$1 teach=/tmp/work/teach_$2 work=/tmp/work/sp_$1
   if [ -f sweep_in/teach_$2_small.tgz ]; then
@@ -41,8 +38,8 @@ student() {  # TASK SHORT
     && python benchmarks/strip_teacher.py $work/ck_full.tgz /tmp/res/ck_sp_$t.tgz.part \
     && mv /tmp/res/ck_sp_$t.tgz.part /tmp/res/ck_sp_$t.tgz
 }
-(export CUDA_VISIBLE_DEVICES=$(gpu 0); student MARAOrient mao) &
-(export CUDA_VISIBLE_DEVICES=$(gpu 1); student MARACollisionOrient mco) &
+(export CUDA_VISIBLE_DEVICES=$(stream_gpu 0); student MARAOrient mao) &
+(export CUDA_VISIBLE_DEVICES=$(stream_gpu 1); student MARACollisionOrient mco) &
 wait
 CUDA_VISIBLE_DEVICES=0 NO_DRIVER_DONE=1 PACKAGES="main before guardmap" bash benchmarks/gpu/cold_59.sh
 echo DRIVER_DONE >> /tmp/res/studies.log

@@ -13,9 +13,7 @@ cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
 rm -f /tmp/res/studies.log /tmp/res/sent
 export KEEP_LOG=1 STUDENT="${STUDENT:-spread --imitation_spread 0.05 --reset_noise 0.02}"
-n=$(nvidia-smi -L 2>/dev/null | wc -l)
-[ "$n" -ge 1 ] || n=1
 (export CUDA_VISIBLE_DEVICES=0; bash benchmarks/gpu/distill_51.sh ${OFFSET:-1584} MARAOrient) &
-(export CUDA_VISIBLE_DEVICES=$(( 1 % n )); bash benchmarks/gpu/distill_51.sh ${OFFSET:-1584} MARACollisionOrient) &
+(export CUDA_VISIBLE_DEVICES=$(stream_gpu 1); bash benchmarks/gpu/distill_51.sh ${OFFSET:-1584} MARACollisionOrient) &
 wait
 echo DRIVER_DONE >> /tmp/res/studies.log

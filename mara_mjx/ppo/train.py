@@ -398,6 +398,13 @@ def make_train(
         )
         return new_state, metrics
 
+    def probe(state: RunnerState) -> jax.Array:  # CurriculumConfig.probe_reach_steps
+        policy_of = lambda obs: forward(saved, state.params, stats_in_use(state), obs, clip)  # noqa: E731
+        return reach_probe(benv.env, policy_of, curriculum.probe_reach_steps)
+
+    probing = curriculum.probe_reach_steps > 0  # (the reach probe: in run, or apart)
+    apart = probing and probe_apart and curriculum.population == 1
+
     def run(state: RunnerState, num_updates: jax.Array) -> tuple[RunnerState, dict]:
         """min(num_updates, updates_per_call) updates in one lax.scan, the other iterations
         skipped (lax.cond): any n in one program. `update` is traced once, its jaxpr giving
@@ -419,13 +426,6 @@ def make_train(
         if probing and not apart:  # the saved policy from the reset, on the last row
             metrics["reach_error_mm"] = reach_row(probe(state), num_updates, updates_per_call)
         return state, metrics
-
-    def probe(state: RunnerState) -> jax.Array:  # CurriculumConfig.probe_reach_steps
-        policy_of = lambda obs: forward(saved, state.params, stats_in_use(state), obs, clip)  # noqa: E731
-        return reach_probe(benv.env, policy_of, curriculum.probe_reach_steps)
-
-    probing = curriculum.probe_reach_steps > 0  # (the reach probe: in run, or apart)
-    apart = probing and probe_apart and curriculum.population == 1
 
     if curriculum.population > 1:
         if mesh is not None:
