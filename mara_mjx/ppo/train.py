@@ -213,7 +213,8 @@ def make_train(
             ik = ik_inputs(network, env_state.obs)  # once per sample (the IK step: ik_prior)
             mean, log_std, _ = policy(params, stats, env_state.obs, ik)
             sigma = rollout_sigma(log_std, spread)  # imitation may widen it (the
-            # Transition's log_prob below stays the student's own: unused by imitation)
+            # Transition's log_prob below stays the student's own: only PPO's loss reads
+            # it, which imitation neither trains on nor reports)
             sample = mean + sigma * jax.random.normal(noise_key, mean.shape)
             probe = t == config.num_steps
             probe_mean = mean
@@ -277,8 +278,11 @@ def make_train(
             normalize_advantages=False,  # done per minibatch over all devices in sgd()
         )
         if mb.teacher_action is not None:  # imitation: the teacher's action, not the reward
+            # is the loss, and the policy's (progress' policy_loss): PPO's clip loss is not
+            # trained on and overflows where imitation_spread samples far outside the
+            # student's sigma (its ratio exp(log pi - log pi_old) inf: NOTES section 58)
             total = imitation_loss(mean, log_std, mb.teacher_action)
-            info = info._replace(total=total)
+            info = info._replace(total=total, policy=total)
         if curriculum.bound_coef > 0.0:  # keep the mean where the env does not clip it
             total = total + curriculum.bound_coef * bound_loss(mean, lower, upper)
         return total, info
