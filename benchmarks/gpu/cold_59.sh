@@ -28,7 +28,8 @@ one() {  # NAME PACKAGE_ROOT COMMIT (run from it: `python -m` puts the working f
   rm -rf /tmp/work/$1 && mkdir -p /tmp/work/$1
   (cd $2 && MARA_MJX_GIT_COMMIT=$3 PYTHONPATH=$site:$2 python -m mara_mjx.benchmark tta --parts tta \
     --seeds 1000 1001 1002 ${QUICK:+--quick} --out /tmp/res/$1 --work_dir /tmp/work/$1 > /tmp/res/$1.log 2>&1)
-  echo "$1 DONE $?" >> /tmp/res/studies.log
+  echo "$1 DONE $? ($(df -h /tmp | tail -1 | awk '{print $4}') free on /tmp)" >> /tmp/res/studies.log
+  [ -s /tmp/res/$1.log ] || echo "$1: no log (study 61's before and guardmap ended so: cd $2 failed?)" >> /tmp/res/studies.log
   # every package's runs hashed by this tree's code, the env state's metrics left out
   # (`state_hash(training_only=True)`, NOTES section 56; the before package predates it)
   PYTHONPATH=$site:$PWD python -c "import sys; from pathlib import Path; from mara_mjx.bench.train_command import state_hash as h

@@ -42,6 +42,7 @@ done
 packcells
 send
 cp /tmp/res/cold.log /tmp/res/studies.log "$OUT/" 2>/dev/null
+tail -c 200000 /tmp/res_driver.log > "$OUT/res_driver.log" 2>/dev/null  # the driver's own errors (study 61 lost two studies' reason)
 tail -n 3 /tmp/res/*.log 2>/dev/null | tail -n 30
 for p in $(ls /tmp/work/*/runs/*/seed_*/progress.csv 2>/dev/null | head -n 1); do echo "$p: $(tail -n 1 "$p" | cut -d, -f1-4)"; done
 nvidia-smi --query-gpu=name,utilization.gpu,memory.used --format=csv,noheader
