@@ -110,6 +110,8 @@ ADDED_SINCE_SPLIT = {
     "train_capped_step": (0.025, {}),
     "teacher": ("", {}),
     "imitation_spread": (0.0, {}),
+    "imitation_lookahead": (1, {}),
+    "imitation_lookahead_mm": (20.0, {}),
 }
 
 

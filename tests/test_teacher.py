@@ -4,6 +4,8 @@ The CLI path (--preset distill --teacher RUN, seed by seed) is in test_seeds_cli
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -14,7 +16,12 @@ from mara_mjx.ppo.config import PRESETS
 from mara_mjx.ppo.divergence import check_finite
 from mara_mjx.ppo.networks import make_network
 from mara_mjx.ppo.policy import make_policy
-from mara_mjx.ppo.teacher import imitation_loss, rollout_sigma, teacher_action
+from mara_mjx.ppo.teacher import (
+    imitation_loss,
+    lookahead_action,
+    rollout_sigma,
+    teacher_action,
+)
 from mara_mjx.ppo.train import make_train
 
 TINY = dict(num_envs=16, num_steps=8, num_minibatches=2, update_epochs=2, learning_rate=3e-3)
@@ -49,6 +56,61 @@ def test_the_imitation_spread_widens_the_rollouts_noise_env_by_env():
         PRESETS["distill"].replace(imitation_spread=0.05)
     with pytest.raises(ValueError, match="imitation_spread"):
         PRESETS["distill"].replace(teacher="runs/x", imitation_spread=-0.1)
+
+
+class _State(NamedTuple):
+    obs: jax.Array
+    terminated: jax.Array
+    truncated: jax.Array
+
+
+def test_the_lookahead_label_is_where_the_teacher_arrives_near_the_target():
+    """imitation_lookahead k: within the radius the label is the teacher's action k - 1
+    steps ahead (its joints after k steps), while every state on the way is inside the
+    radius and no episode ends; outside, the teacher's own action. A toy world: the
+    joints are where the action puts them, the position error is the first three joints
+    (m), and a teacher that halves them."""
+
+    def obs_of(q):
+        return jnp.concatenate([q, q[:, :3]], -1)
+
+    def step(state, action):
+        q = action
+        ends = (q[:, 5] > 0.2) & (q[:, 5] < 0.3)  # an episode ends there (joint 6)
+        return _State(obs_of(q), ends, jnp.zeros_like(ends))
+
+    def teacher(obs):
+        return 0.5 * obs[:, :6]
+
+    q = jnp.array(
+        [
+            [0.01, 0.0, 0.0, 0.0, 0.0, 0.0],  # inside 20 mm: three steps ahead
+            [0.03, 0.0, 0.0, 0.0, 0.0, 0.0],  # 30 mm: outside, the teacher's action
+            [0.036, 0.0, 0.0, 0.0, 0.0, 0.0],  # inside 40 mm; next 18 mm, then 9
+            [0.01, 0.0, 0.0, 0.0, 0.0, 0.5],  # its first step ends the episode (0.25)
+            [0.01, 0.0, 0.0, 0.0, 0.0, 0.9],  # its second does (0.45, then 0.225)
+        ]
+    )
+    state = _State(obs_of(q), jnp.zeros(5, bool), jnp.zeros(5, bool))
+    lo, hi = -jnp.inf, jnp.inf
+    one = lookahead_action(teacher, step, state, lo, hi, 1, 0.02)
+    np.testing.assert_allclose(one, 0.5 * q)  # k = 1: the teacher's action
+    got = np.asarray(lookahead_action(teacher, step, state, lo, hi, 3, 0.02))
+    np.testing.assert_allclose(got[0], q[0] / 8)
+    np.testing.assert_allclose(got[1], q[1] / 2)
+    np.testing.assert_allclose(got[2], q[2] / 2)  # 36 mm: outside 20
+    np.testing.assert_allclose(got[3], q[3] / 2)
+    np.testing.assert_allclose(got[4], q[4] / 4)
+    wide = np.asarray(lookahead_action(teacher, step, state, lo, hi, 3, 0.04))
+    np.testing.assert_allclose(wide[1], q[1] / 8)
+    np.testing.assert_allclose(wide[2], q[2] / 8)
+    # the lookahead clips as the label does: to the joint box
+    box = np.asarray(lookahead_action(teacher, step, state, -0.001, 0.001, 3, 0.02))
+    assert np.all(np.abs(box) <= 0.001)
+    with pytest.raises(ValueError, match="imitation_lookahead .*--teacher RUN"):
+        PRESETS["distill"].replace(imitation_lookahead=2)
+    with pytest.raises(ValueError, match="imitation_lookahead_mm"):
+        PRESETS["distill"].replace(teacher="runs/x", imitation_lookahead_mm=0.0)
 
 
 def _teacher(env):
@@ -124,6 +186,8 @@ def test_a_wide_spread_over_a_narrow_student_trains_without_a_false_divergence()
         init_log_std=-8.0,
         log_std_floor=-8.0,
         imitation_spread=0.8,
+        imitation_lookahead=3,  # (and labels three steps ahead near the target)
+        imitation_lookahead_mm=500.0,
         **TINY,
     )
     trainer = make_train(env, config, updates_per_call=2, teacher=_teacher(env))

@@ -175,6 +175,16 @@ class CurriculumConfig(_ConfigMixin):
     """With teacher: the rollouts' noise, env i of N at least imitation_spread * i / (N - 1)
     rad (`mara_mjx.ppo.teacher.rollout_sigma`): states from the teacher's path to well
     off it; the loss keeps the student's own sigma. 0 is off."""
+    imitation_lookahead: int = 1
+    """With teacher: near the target, a state's label is where the teacher is up to
+    imitation_lookahead steps later, not its next step (`mara_mjx.ppo.teacher.
+    lookahead_action`): k steps ahead while the TCP of this state and of the teacher's
+    next k - 1 states is within imitation_lookahead_mm of the target and no episode ends.
+    A teacher whose last approach is a rule that stops and then jumps (orient_first's)
+    is discontinuous there, and a student regressing across it approaches slowly
+    (benchmarks/NOTES.md section 58); its destination is not. 1 is off."""
+    imitation_lookahead_mm: float = 20.0
+    """The radius (mm, TCP to target) within which imitation_lookahead acts."""
 
     def __post_init__(self):
         _check_range("bound_coef", self.bound_coef, 0.0, math.inf)
@@ -210,6 +220,13 @@ class CurriculumConfig(_ConfigMixin):
         if self.imitation_spread > 0.0 and not self.teacher:
             raise ValueError("imitation_spread widens an imitation run's rollouts: give "
                              "--teacher RUN, or set imitation_spread 0")  # fmt: skip
+        _check_int("imitation_lookahead", self.imitation_lookahead, minimum=1)
+        if self.imitation_lookahead > 1 and not self.teacher:
+            raise ValueError("imitation_lookahead labels an imitation run's states: give "
+                             "--teacher RUN, or set imitation_lookahead 1")  # fmt: skip
+        _check_range(
+            "imitation_lookahead_mm", self.imitation_lookahead_mm, 0.0, 1000.0, low_open=True
+        )
         if self.teacher and self.population > 1:  # the exploit step ranks by reward
             raise ValueError("teacher (imitation) and population > 1 do not combine")
         if not isinstance(self.stagger_episodes, bool):

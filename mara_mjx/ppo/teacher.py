@@ -111,6 +111,37 @@ def teacher_action(teacher: Policy, obs: jax.Array, lower: Any, upper: Any) -> j
     return jnp.clip(teacher(obs), lower, upper)
 
 
+def lookahead_action(
+    teacher: Policy,
+    step: Any,
+    state: Any,
+    lower: Any,
+    upper: Any,
+    steps: int,
+    radius: float,
+) -> jax.Array:
+    """The imitation label with CurriculumConfig.imitation_lookahead: the teacher's action
+    k steps ahead, a_k = teacher(s_k) with s_{j+1} = step(s_j, a_j) from s_0 = `state`
+    (a batch: `.obs` (N, obs_size), its position error in obs[:, 6:9] (m), and
+    `.terminated`, `.truncated` after a step), for the largest k < `steps` such that
+    s_0 .. s_k all have |e| < `radius` (m) and no episode ended on the way; a_0, the
+    teacher's own action, where s_0 is outside. `step` is the env's pure step, so the
+    real rollout is not moved. The joints the teacher arrives at rather than the ones it
+    passes: continuous where the teacher's last approach stops and jumps."""
+
+    def near(obs):
+        return jnp.sum(jnp.square(obs[..., 6:9]), axis=-1) < radius**2
+
+    action = teacher_action(teacher, state.obs, lower, upper)
+    label, ok = action, near(state.obs)
+    for _ in range(steps - 1):
+        state = step(state, action)
+        ok = ok & near(state.obs) & ~(state.terminated | state.truncated)
+        action = teacher_action(teacher, state.obs, lower, upper)
+        label = jnp.where(ok[..., None], action, label)
+    return label
+
+
 def rollout_sigma(log_std: jax.Array, spread: float) -> jax.Array:
     """The imitation rollouts' noise (CurriculumConfig.imitation_spread): per env i of the
     N rows of `log_std` (N, A), max(exp(log_std), spread * i / (N - 1)): env 0 samples with

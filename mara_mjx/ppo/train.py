@@ -59,7 +59,12 @@ from mara_mjx.ppo.networks import (
     update_stats,
 )
 from mara_mjx.ppo.optim import make_lr_schedule, make_optimizer, stratified_minibatches
-from mara_mjx.ppo.teacher import imitation_loss, rollout_sigma, teacher_action
+from mara_mjx.ppo.teacher import (
+    imitation_loss,
+    lookahead_action,
+    rollout_sigma,
+    teacher_action,
+)
 from mara_mjx.runtime import sharding
 
 
@@ -196,6 +201,20 @@ def make_train(
     lower = jnp.asarray(getattr(env, "joint_lower", -jnp.inf), jnp.float32)
     upper = jnp.asarray(getattr(env, "joint_upper", jnp.inf), jnp.float32)
 
+    def label(teacher: Any, env_state: BatchedState) -> jax.Array:
+        """The imitation label of each env's state (CurriculumConfig.imitation_lookahead)."""
+        if curriculum.imitation_lookahead <= 1:
+            return teacher_action(teacher, env_state.obs, lower, upper)
+        return lookahead_action(
+            teacher,
+            benv.step,
+            env_state,
+            lower,
+            upper,
+            curriculum.imitation_lookahead,
+            curriculum.imitation_lookahead_mm / 1000.0,
+        )
+
     def rollout(
         params: Any,
         stats: RunningStats | None,
@@ -244,9 +263,7 @@ def make_train(
                 episode_return=next_state.episode_return,
                 metrics=next_state.metrics,
                 ik=ik,
-                teacher_action=None
-                if teacher is None
-                else teacher_action(teacher, env_state.obs, lower, upper),
+                teacher_action=None if teacher is None else label(teacher, env_state),
             )
             env_state = jax.tree.map(
                 lambda old, new: jnp.where(probe, old, new), env_state, next_state
