@@ -20,7 +20,7 @@
 # (a teacher archive not carried: its teachers trained first, the CLI default on 1504).
 # TASKS: the students' tasks (default "MARAOrient MARACollisionOrient"); NO_COLD=1: no step 2.
 # QUICK=1: the studies' tiny CPU settings, for a check before a GPU call.
-# The first run (64da95b, study 61) stopped every student at update ~160: the divergence
+# The first run (0f2ea6d, study 61) stopped every student at update ~160: the divergence
 # guard read PPO's clip loss, overflowing on the spread's samples and not trained on
 # (NOTES section 58; fixed in the commit after).
 cd "$(dirname "$0")/../.."
