@@ -17,6 +17,7 @@
 #   patch -d sweep_in/guardmap -p1 < benchmarks/gpu/guard_map.patch
 # Run it alone on the GPU (timings). Launch with setsid, follow with poll.sh.
 # QUICK=1: the study's tiny CPU settings. PACKAGES: which of the three (default all).
+# SEEDS: the tta seeds (default "1000 1001 1002").
 # NO_DRIVER_DONE=1: leave DRIVER_DONE to the caller (one of several drivers in a row).
 cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
@@ -27,7 +28,7 @@ one() {  # NAME PACKAGE_ROOT COMMIT (run from it: `python -m` puts the working f
   # artefacts record as their git commit)
   rm -rf /tmp/work/$1 && mkdir -p /tmp/work/$1
   (cd $2 && MARA_MJX_GIT_COMMIT=$3 PYTHONPATH=$site:$2 python -m mara_mjx.benchmark tta --parts tta \
-    --seeds 1000 1001 1002 ${QUICK:+--quick} --out /tmp/res/$1 --work_dir /tmp/work/$1 > /tmp/res/$1.log 2>&1)
+    --seeds ${SEEDS:-1000 1001 1002} ${QUICK:+--quick} --out /tmp/res/$1 --work_dir /tmp/work/$1 > /tmp/res/$1.log 2>&1)
   echo "$1 DONE $? ($(df -h /tmp | tail -1 | awk '{print $4}') free on /tmp)" >> /tmp/res/studies.log
   [ -s /tmp/res/$1.log ] || echo "$1: no log (study 61's before and guardmap ended so: cd $2 failed?)" >> /tmp/res/studies.log
   # every package's runs hashed by this tree's code, the env state's metrics left out
