@@ -1,22 +1,19 @@
 #!/bin/bash
-# Issue 35's cold start on the GPU, in one run (NOTES section 53): `python -m
+# Issue 35's cold start on the GPU, in one run (NOTES sections 53 and 58): `python -m
 # mara_mjx.benchmark tta --parts tta` (MARACollisionOrient, its CLI default; seeds
-# 1000-1002, each cold with an empty compilation cache and then warm) for three packages,
+# 1000-1002, each cold with an empty compilation cache and then warm) for two packages,
 # alternating (ROUNDS, default 1):
-#   before   sweep_in/before: main before commit ac8d6a3 (`update` traced twice);
-#   main     this tree (`run` traces `update` once, and the reach probe is its own program,
-#            compiled beside run's: both bitwise the same training as before on the CPU);
-#   guardmap sweep_in/guardmap: this tree with guard_map.patch (branch cold-start-guard-map:
-#            keep_clear's clearances in one lax.map: a third of run's compile on the CPU,
-#            but not bitwise inside the program at 4 envs; the state hashes in the
-#            study's table say what the GPU does).
-# Made here (ignored by git; carry sweep_in):
-#   rm -rf sweep_in/before sweep_in/guardmap && mkdir -p sweep_in/before sweep_in/guardmap
+#   before   sweep_in/before: main before commit ac8d6a3 (`update` traced twice, the reach
+#            probe inside run, the guard's nine clearances nine copies);
+#   main     this tree (all three changed; every one bitwise the same training: study 61,
+#            results/time_to_accuracy/cold61/).
+# Made here (ignored by git; carry sweep_in/before):
+#   rm -rf sweep_in/before && mkdir -p sweep_in/before
 #   git archive ac8d6a3~1 mara_mjx assets | tar -x -C sweep_in/before
-#   git archive HEAD mara_mjx assets | tar -x -C sweep_in/guardmap
-#   patch -d sweep_in/guardmap -p1 < benchmarks/gpu/guard_map.patch
+# (Study 61 also ran a package `guardmap`, main with the guard's lax.map as a patch, since
+# landed: git log -- mara_mjx/envs/clearance.py.)
 # Run it alone on the GPU (timings). Launch with setsid, follow with poll.sh.
-# QUICK=1: the study's tiny CPU settings. PACKAGES: which of the three (default all).
+# QUICK=1: the study's tiny CPU settings. PACKAGES: which of the two (default both).
 # SEEDS: the tta seeds (default "1000 1001 1002").
 # NO_DRIVER_DONE=1: leave DRIVER_DONE to the caller (one of several drivers in a row).
 cd "$(dirname "$0")/../.."
@@ -30,7 +27,7 @@ one() {  # NAME PACKAGE_ROOT COMMIT (run from it: `python -m` puts the working f
   (cd $2 && MARA_MJX_GIT_COMMIT=$3 PYTHONPATH=$site:$2 python -m mara_mjx.benchmark tta --parts tta \
     --seeds ${SEEDS:-1000 1001 1002} ${QUICK:+--quick} --out /tmp/res/$1 --work_dir /tmp/work/$1 > /tmp/res/$1.log 2>&1)
   echo "$1 DONE $? ($(df -h /tmp | tail -1 | awk '{print $4}') free on /tmp)" >> /tmp/res/studies.log
-  [ -s /tmp/res/$1.log ] || echo "$1: no log (study 61's before and guardmap ended so: cd $2 failed?)" >> /tmp/res/studies.log
+  [ -s /tmp/res/$1.log ] || echo "$1: no log (cd $2 or the log's creation failed: res_driver.log says)" >> /tmp/res/studies.log
   # every package's runs hashed by this tree's code, the env state's metrics left out
   # (`state_hash(training_only=True)`, NOTES section 56; the before package predates it)
   PYTHONPATH=$site:$PWD python -c "import sys; from pathlib import Path; from mara_mjx.bench.train_command import state_hash as h
@@ -38,7 +35,7 @@ for d in sorted(Path(sys.argv[1]).glob('*/runs/*/')): print(d.name, h(d), h(d, t
   rm -rf /tmp/work/$1/*/cache-seed*  # (the caches: gigabytes on a GPU)
   pack $1
 }
-packages=${PACKAGES:-before main guardmap}  # (a subset, e.g. PACKAGES="main guardmap")
+packages=${PACKAGES:-before main}  # (a subset, e.g. PACKAGES=main)
 for d in $packages; do
   [ $d = main ] && continue
   [ -d sweep_in/$d/mara_mjx ] || { echo "no sweep_in/$d/mara_mjx" >> /tmp/res/studies.log; [ -n "$NO_DRIVER_DONE" ] || echo DRIVER_DONE >> /tmp/res/studies.log; exit 1; }
@@ -49,7 +46,7 @@ for round in $(seq 1 ${ROUNDS:-1}); do  # one round: 18 train commands, about 14
     case $d in
       before) one tta_before_$round $PWD/sweep_in/before ac8d6a3~1 ;;
       main) one tta_main_$round $PWD $here ;;
-      guardmap) one tta_guardmap_$round $PWD/sweep_in/guardmap $here+guard_map.patch ;;
+      *) echo "unknown package $d (before, main)" >> /tmp/res/studies.log ;;
     esac
   done
 done
