@@ -111,6 +111,16 @@ def teacher_action(teacher: Policy, obs: jax.Array, lower: Any, upper: Any) -> j
     return jnp.clip(teacher(obs), lower, upper)
 
 
+def imitation_labels(step: Any, lower: Any, upper: Any, curriculum: Any):
+    """(teacher, state) -> the imitation labels of a batch of states, as `curriculum`
+    (CurriculumConfig) asks: `lookahead_action` with its imitation_lookahead steps within
+    imitation_lookahead_mm (1 step: the teacher's own action, `teacher_action`)."""
+    steps, radius = curriculum.imitation_lookahead, curriculum.imitation_lookahead_mm / 1000.0
+    return lambda teacher, state: lookahead_action(
+        teacher, step, state, lower, upper, steps, radius
+    )
+
+
 def lookahead_action(
     teacher: Policy,
     step: Any,

@@ -59,12 +59,7 @@ from mara_mjx.ppo.networks import (
     update_stats,
 )
 from mara_mjx.ppo.optim import make_lr_schedule, make_optimizer, stratified_minibatches
-from mara_mjx.ppo.teacher import (
-    imitation_loss,
-    lookahead_action,
-    rollout_sigma,
-    teacher_action,
-)
+from mara_mjx.ppo.teacher import imitation_labels, imitation_loss, rollout_sigma
 from mara_mjx.runtime import sharding
 
 
@@ -200,20 +195,7 @@ def make_train(
 
     lower = jnp.asarray(getattr(env, "joint_lower", -jnp.inf), jnp.float32)
     upper = jnp.asarray(getattr(env, "joint_upper", jnp.inf), jnp.float32)
-
-    def label(teacher: Any, env_state: BatchedState) -> jax.Array:
-        """The imitation label of each env's state (CurriculumConfig.imitation_lookahead)."""
-        if curriculum.imitation_lookahead <= 1:
-            return teacher_action(teacher, env_state.obs, lower, upper)
-        return lookahead_action(
-            teacher,
-            benv.step,
-            env_state,
-            lower,
-            upper,
-            curriculum.imitation_lookahead,
-            curriculum.imitation_lookahead_mm / 1000.0,
-        )
+    imitation_label = imitation_labels(benv.step, lower, upper, curriculum)
 
     def rollout(
         params: Any,
@@ -231,9 +213,8 @@ def make_train(
             key, noise_key = jax.random.split(key)
             ik = ik_inputs(network, env_state.obs)  # once per sample (the IK step: ik_prior)
             mean, log_std, _ = policy(params, stats, env_state.obs, ik)
-            sigma = rollout_sigma(log_std, spread)  # imitation may widen it (the
-            # Transition's log_prob below stays the student's own: only PPO's loss reads
-            # it, which imitation neither trains on nor reports)
+            sigma = rollout_sigma(log_std, spread)  # imitation may widen it (log_prob
+            # below stays the student's own: only PPO's loss, unused by imitation, reads it)
             sample = mean + sigma * jax.random.normal(noise_key, mean.shape)
             probe = t == config.num_steps
             probe_mean = mean
@@ -263,7 +244,7 @@ def make_train(
                 episode_return=next_state.episode_return,
                 metrics=next_state.metrics,
                 ik=ik,
-                teacher_action=None if teacher is None else label(teacher, env_state),
+                teacher_action=None if teacher is None else imitation_label(teacher, env_state),
             )
             env_state = jax.tree.map(
                 lambda old, new: jnp.where(probe, old, new), env_state, next_state
@@ -295,9 +276,7 @@ def make_train(
             normalize_advantages=False,  # done per minibatch over all devices in sgd()
         )
         if mb.teacher_action is not None:  # imitation: the teacher's action, not the reward
-            # is the loss, and the policy's (progress' policy_loss): PPO's clip loss is not
-            # trained on and overflows where imitation_spread samples far outside the
-            # student's sigma (its ratio exp(log pi - log pi_old) inf: NOTES section 58)
+            # is the loss and the policy's (PPO's, untrained, overflows: NOTES section 58)
             total = imitation_loss(mean, log_std, mb.teacher_action)
             info = info._replace(total=total, policy=total)
         if curriculum.bound_coef > 0.0:  # keep the mean where the env does not clip it
