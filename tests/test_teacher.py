@@ -62,51 +62,62 @@ class _State(NamedTuple):
     obs: jax.Array
     terminated: jax.Array
     truncated: jax.Array
+    metrics: dict
+
+
+def _toy_step(state, action):
+    """A toy world: the joints are where the action puts them, the position error is the
+    first three joints (m); joint 6 in (0.2, 0.3) ends the episode (terminated), in (0.6,
+    0.7) truncates it, joint 5 in (0.2, 0.3) collides."""
+    q = action
+    inside = lambda j, lo: (q[:, j] > lo) & (q[:, j] < lo + 0.1)  # noqa: E731
+    collided = inside(4, 0.2).astype(jnp.float32)
+    return _State(obs_of(q), inside(5, 0.2), inside(5, 0.6), {"collided": collided})
+
+
+def obs_of(q):
+    return jnp.concatenate([q, q[:, :3]], -1)
+
+
+def _toy_state(rows):
+    q = jnp.array([r + [0.0] * (6 - len(r)) for r in rows])
+    zeros = jnp.zeros(len(rows), bool)
+    return q, _State(obs_of(q), zeros, zeros, {"collided": jnp.zeros(len(rows))})
 
 
 def test_the_lookahead_label_is_where_the_teacher_arrives_near_the_target():
     """imitation_lookahead k: within the radius the label is the teacher's action k - 1
     steps ahead (its joints after k steps), while every state on the way is inside the
-    radius and no episode ends; outside, the teacher's own action. A toy world: the
-    joints are where the action puts them, the position error is the first three joints
-    (m), and a teacher that halves them."""
-
-    def obs_of(q):
-        return jnp.concatenate([q, q[:, :3]], -1)
-
-    def step(state, action):
-        q = action
-        ends = (q[:, 5] > 0.2) & (q[:, 5] < 0.3)  # an episode ends there (joint 6)
-        return _State(obs_of(q), ends, jnp.zeros_like(ends))
-
-    def teacher(obs):
-        return 0.5 * obs[:, :6]
-
-    q = jnp.array(
+    radius and no step ends the episode or collides; outside, the teacher's own action."""
+    halve = lambda obs: 0.5 * obs[:, :6]  # noqa: E731
+    q, state = _toy_state(
         [
-            [0.01, 0.0, 0.0, 0.0, 0.0, 0.0],  # inside 20 mm: three steps ahead
-            [0.03, 0.0, 0.0, 0.0, 0.0, 0.0],  # 30 mm: outside, the teacher's action
-            [0.036, 0.0, 0.0, 0.0, 0.0, 0.0],  # inside 40 mm; next 18 mm, then 9
-            [0.01, 0.0, 0.0, 0.0, 0.0, 0.5],  # its first step ends the episode (0.25)
-            [0.01, 0.0, 0.0, 0.0, 0.0, 0.9],  # its second does (0.45, then 0.225)
+            [0.01],  # inside 20 mm: three steps ahead
+            [0.03],  # 30 mm: outside, the teacher's action
+            [0.036],  # inside 40 mm; next 18 mm, then 9
+            [0.01, 0, 0, 0, 0, 0.5],  # its first step ends the episode (0.25)
+            [0.01, 0, 0, 0, 0, 0.9],  # its second does (0.45, then 0.225)
+            [0.01, 0, 0, 0, 0, 1.3],  # its first step truncates it (0.65)
+            [0.01, 0, 0, 0, 0.5],  # its first step collides (joint 5 at 0.25)
         ]
     )
-    state = _State(obs_of(q), jnp.zeros(5, bool), jnp.zeros(5, bool))
     lo, hi = -jnp.inf, jnp.inf
-    one = lookahead_action(teacher, step, state, lo, hi, 1, 0.02)
-    np.testing.assert_allclose(one, 0.5 * q)  # k = 1: the teacher's action
-    got = np.asarray(lookahead_action(teacher, step, state, lo, hi, 3, 0.02))
-    np.testing.assert_allclose(got[0], q[0] / 8)
-    np.testing.assert_allclose(got[1], q[1] / 2)
-    np.testing.assert_allclose(got[2], q[2] / 2)  # 36 mm: outside 20
-    np.testing.assert_allclose(got[3], q[3] / 2)
-    np.testing.assert_allclose(got[4], q[4] / 4)
-    wide = np.asarray(lookahead_action(teacher, step, state, lo, hi, 3, 0.04))
-    np.testing.assert_allclose(wide[1], q[1] / 8)
-    np.testing.assert_allclose(wide[2], q[2] / 8)
-    # the lookahead clips as the label does: to the joint box
-    box = np.asarray(lookahead_action(teacher, step, state, -0.001, 0.001, 3, 0.02))
-    assert np.all(np.abs(box) <= 0.001)
+    np.testing.assert_allclose(lookahead_action(halve, _toy_step, state, lo, hi, 1, 0.02), q / 2)
+    got = np.asarray(lookahead_action(halve, _toy_step, state, lo, hi, 3, 0.02))
+    np.testing.assert_allclose(got, q / np.array([8, 2, 2, 2, 4, 2, 2])[:, None])
+    wide = np.asarray(lookahead_action(halve, _toy_step, state, lo, hi, 3, 0.04))
+    np.testing.assert_allclose(wide[:3], q[:3] / 8)
+    # a teacher heading out of the radius: its next state (22.5 mm) is outside 20
+    grow = lambda obs: 1.5 * obs[:, :6]  # noqa: E731
+    q, state = _toy_state([[0.015]])
+    np.testing.assert_allclose(lookahead_action(grow, _toy_step, state, lo, hi, 3, 0.02), 1.5 * q)
+    # the steps ahead take the clipped action: a teacher overshooting to -2 q in a box of
+    # +-15 mm stays within 30 mm (-15, +15, -15: the label -15 mm); unclipped, its second
+    # state would be 40 mm off, outside, and the label +15 mm
+    flip = lambda obs: -2.0 * obs[:, :6]  # noqa: E731
+    q, state = _toy_state([[0.01]])
+    box = np.asarray(lookahead_action(flip, _toy_step, state, -0.015, 0.015, 3, 0.03))
+    np.testing.assert_allclose(box[0, 0], -0.015)
     with pytest.raises(ValueError, match="imitation_lookahead .*--teacher RUN"):
         PRESETS["distill"].replace(imitation_lookahead=2)
     with pytest.raises(ValueError, match="imitation_lookahead_mm"):

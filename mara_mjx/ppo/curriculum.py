@@ -176,15 +176,17 @@ class CurriculumConfig(_ConfigMixin):
     rad (`mara_mjx.ppo.teacher.rollout_sigma`): states from the teacher's path to well
     off it; the loss keeps the student's own sigma. 0 is off."""
     imitation_lookahead: int = 1
-    """With teacher: near the target, a state's label is where the teacher is up to
-    imitation_lookahead steps later, not its next step (`mara_mjx.ppo.teacher.
-    lookahead_action`): k steps ahead while the TCP of this state and of the teacher's
-    next k - 1 states is within imitation_lookahead_mm of the target and no episode ends.
+    """With teacher: near the target, a state's label is the teacher's command up to
+    imitation_lookahead - 1 steps later, not its next one (`mara_mjx.ppo.teacher.
+    lookahead_action`): as far ahead as the TCP of this state and of the teacher's next
+    states stays within imitation_lookahead_mm of the target, no episode ends and no step
+    collides.
     A teacher whose last approach is a rule that stops and then jumps (orient_first's)
     is discontinuous there, and a student regressing across it approaches slowly
     (benchmarks/NOTES.md section 58); its destination is not. 1 is off."""
     imitation_lookahead_mm: float = 20.0
-    """The radius (mm, TCP to target) within which imitation_lookahead acts."""
+    """The radius (mm, TCP to target) within which imitation_lookahead acts (unused when
+    it is 1)."""
 
     def __post_init__(self):
         _check_range("bound_coef", self.bound_coef, 0.0, math.inf)

@@ -6,12 +6,14 @@ residual and its gates, the orient-first rule, the IK finish, the collision guar
 student trains on the states its own sampled policy visits (DAgger without a mixing
 schedule: the teacher is asked at every visited state and never acts), and its loss is
 the negative log-likelihood of the teacher's action (clipped to the joint box, what the
-env would execute) under the student's Gaussian: the mean learns the teacher's action and
-the standard deviation the size of its own error, so the rollouts' noise shrinks with it
-(down to `PPOConfig.log_std_floor`). No reward is maximised; the value head is not
-trained. The student is a plain network (`default`'s parametrisation), exportable to
-`.npz` or ONNX without any IK in its graph: the way to "the learnt policy alone" at the
-teacher's accuracy (benchmarks/NOTES.md section 51).
+env would execute; near the target, with CurriculumConfig.imitation_lookahead, the
+teacher's action a few steps ahead: `lookahead_action`) under the student's Gaussian:
+the mean learns the teacher's action and the standard deviation the size of its own
+error, so the rollouts' noise shrinks with it (down to `PPOConfig.log_std_floor`). No
+reward is maximised; the value head is not trained. The student is a plain network
+(`default`'s parametrisation), exportable to `.npz` or ONNX without any IK in its graph:
+the way to "the learnt policy alone" at the teacher's accuracy (benchmarks/NOTES.md
+section 51).
 
     teacher = load_teacher("runs/MARAOrient-.../seed_1000", "MARAOrient")
     trainer = make_train(env, PRESETS["distill"].replace(teacher="runs/..."), teacher=teacher)
@@ -23,6 +25,7 @@ A single student run (no `--seeds`) learns from the teacher run's seed of its ow
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -111,7 +114,9 @@ def teacher_action(teacher: Policy, obs: jax.Array, lower: Any, upper: Any) -> j
     return jnp.clip(teacher(obs), lower, upper)
 
 
-def imitation_labels(step: Any, lower: Any, upper: Any, curriculum: Any):
+def imitation_labeller(
+    step: Any, lower: Any, upper: Any, curriculum: Any
+) -> Callable[[Policy, Any], jax.Array]:
     """(teacher, state) -> the imitation labels of a batch of states, as `curriculum`
     (CurriculumConfig) asks: `lookahead_action` with its imitation_lookahead steps within
     imitation_lookahead_mm (1 step: the teacher's own action, `teacher_action`)."""
@@ -132,24 +137,31 @@ def lookahead_action(
 ) -> jax.Array:
     """The imitation label with CurriculumConfig.imitation_lookahead: the teacher's action
     k steps ahead, a_k = teacher(s_k) with s_{j+1} = step(s_j, a_j) from s_0 = `state`
-    (a batch: `.obs` (N, obs_size), its position error in obs[:, 6:9] (m), and
-    `.terminated`, `.truncated` after a step), for the largest k < `steps` such that
-    s_0 .. s_k all have |e| < `radius` (m) and no episode ended on the way; a_0, the
-    teacher's own action, where s_0 is outside. `step` is the env's pure step, so the
-    real rollout is not moved. The joints the teacher arrives at rather than the ones it
-    passes: continuous where the teacher's last approach stops and jumps."""
+    (a batch: `.obs` (N, obs_size), its position error in obs[:, 6:9] (m), and after a
+    step `.terminated`, `.truncated` and `.metrics["collided"]`), for the largest
+    k < `steps` such that s_0 .. s_k all have |e| < `radius` (m) and no step on the way
+    ended its episode or collided (the env then puts the arm back at the reset pose); a_0,
+    the teacher's own action, where s_0 is outside. `step` is the env's pure step, so
+    the real rollout is not moved. The joints the teacher arrives at rather than the ones
+    it passes: continuous where the teacher's last approach stops and jumps. One copy of
+    the teacher and the step in the program (a fori_loop), whatever `steps`."""
+    action = teacher_action(teacher, state.obs, lower, upper)
+    if steps <= 1:
+        return action
 
     def near(obs):
         return jnp.sum(jnp.square(obs[..., 6:9]), axis=-1) < radius**2
 
-    action = teacher_action(teacher, state.obs, lower, upper)
-    label, ok = action, near(state.obs)
-    for _ in range(steps - 1):
+    def ahead(_, carry):
+        state, action, label, ok = carry
         state = step(state, action)
-        ok = ok & near(state.obs) & ~(state.terminated | state.truncated)
+        ended = state.terminated | state.truncated | (state.metrics["collided"] > 0)
+        ok = ok & near(state.obs) & ~ended
         action = teacher_action(teacher, state.obs, lower, upper)
-        label = jnp.where(ok[..., None], action, label)
-    return label
+        return state, action, jnp.where(ok[..., None], action, label), ok
+
+    carry = (state, action, action, near(state.obs))
+    return jax.lax.fori_loop(0, steps - 1, ahead, carry)[2]
 
 
 def rollout_sigma(log_std: jax.Array, spread: float) -> jax.Array:

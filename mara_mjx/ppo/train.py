@@ -59,7 +59,7 @@ from mara_mjx.ppo.networks import (
     update_stats,
 )
 from mara_mjx.ppo.optim import make_lr_schedule, make_optimizer, stratified_minibatches
-from mara_mjx.ppo.teacher import imitation_labels, imitation_loss, rollout_sigma
+from mara_mjx.ppo.teacher import imitation_labeller, imitation_loss, rollout_sigma
 from mara_mjx.runtime import sharding
 
 
@@ -94,7 +94,7 @@ class Transition(NamedTuple):
     episode_return: jax.Array  # (N,) return of the episode that ended here, else 0
     metrics: dict[str, jax.Array]  # env metrics of the step
     ik: Any = None  # networks.ik_inputs of obs (ik_prior), computed once per sample
-    teacher_action: Any = None  # (N, A) rad, the teacher's action at obs (imitation)
+    teacher_action: Any = None  # (N, A) rad, the imitation label at obs (teacher.py)
 
 
 class Batch(NamedTuple):
@@ -107,7 +107,7 @@ class Batch(NamedTuple):
     advantages: jax.Array
     returns: jax.Array
     ik: Any = None  # networks.ik_inputs of obs (ik_prior), from the rollout
-    teacher_action: Any = None  # the teacher's action at obs (CurriculumConfig.teacher)
+    teacher_action: Any = None  # the imitation label at obs (CurriculumConfig.teacher)
 
 
 class Trainer(NamedTuple):
@@ -195,7 +195,7 @@ def make_train(
 
     lower = jnp.asarray(getattr(env, "joint_lower", -jnp.inf), jnp.float32)
     upper = jnp.asarray(getattr(env, "joint_upper", jnp.inf), jnp.float32)
-    imitation_label = imitation_labels(benv.step, lower, upper, curriculum)
+    imitation_label = imitation_labeller(benv.step, lower, upper, curriculum)
 
     def rollout(
         params: Any,
@@ -275,7 +275,7 @@ def make_train(
             clip_value=config.clip_value,
             normalize_advantages=False,  # done per minibatch over all devices in sgd()
         )
-        if mb.teacher_action is not None:  # imitation: the teacher's action, not the reward
+        if mb.teacher_action is not None:  # imitation: the teacher's label, not the reward
             # is the loss and the policy's (PPO's, untrained, overflows: NOTES section 58)
             total = imitation_loss(mean, log_std, mb.teacher_action)
             info = info._replace(total=total, policy=total)
