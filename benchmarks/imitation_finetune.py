@@ -6,8 +6,8 @@ to train: the optimiser and the envs start afresh.
 
     python benchmarks/imitation_finetune.py STUDENT_SEED TEACHER_SEED MODE UPDATES OUT_SEED
     # MODE: floor (the student's own config), spread (--imitation_spread 0.05,
-    # --reset_noise 0.02, floor 0.01) or lookahead (spread and --imitation_lookahead 3
-    # within 20 mm: NOTES section 58)
+    # --reset_noise 0.02, floor 0.01), lookahead (spread and --imitation_lookahead 3
+    # within 20 mm: NOTES section 59) or lookahead2 (the same with 2)
 """
 
 from __future__ import annotations
@@ -33,13 +33,14 @@ def main() -> None:
     found = ckpt.find_checkpoint(student)
     arrays, meta = ckpt.load_checkpoint(found)
     config = TrainConfig.from_meta(meta)
-    if mode not in ("floor", "spread", "lookahead"):
-        raise SystemExit(f"MODE {mode!r}: choose floor, spread or lookahead")
+    if mode not in ("floor", "spread", "lookahead", "lookahead2"):
+        raise SystemExit(f"MODE {mode!r}: choose floor, spread, lookahead or lookahead2")
     env = mara_mjx.make(meta["env_name"], reset_noise=0.0 if mode == "floor" else 0.02)
     if mode != "floor":
         config = config.replace(log_std_floor=-4.6, imitation_spread=0.05)
-    if mode == "lookahead":
-        config = config.replace(imitation_lookahead=3, imitation_lookahead_mm=20.0)
+    if mode.startswith("lookahead"):
+        k = 2 if mode == "lookahead2" else 3
+        config = config.replace(imitation_lookahead=k, imitation_lookahead_mm=20.0)
     batch = config.ppo.num_envs * config.ppo.num_steps
     config = config.replace(teacher=teacher_dir, total_timesteps=batch * updates)
     trainer = make_train(env, config, teacher=load_teacher(teacher_dir, meta["env_name"]))
