@@ -34,6 +34,26 @@ def load(folder: Path):
     return policy_from_checkpoint(arrays, meta), meta
 
 
+def observer(env, params):
+    """q (6,) -> the observation at joints q, at rest (the task's default target)."""
+
+    def obs(q):
+        pose = env.arm.pose_with(q, env.kinematics, collide=False)
+        return env._observe(q, pose, jnp.zeros(6), params)[0]
+
+    return obs
+
+
+def settled(env, params, teacher):
+    """The joints where `teacher` settles: its deterministic policy from the reset, 60 steps
+    (train driver)."""
+    state = env.reset(jax.random.key(0), params)
+    step = jax.jit(lambda s: env.step(s, teacher(s.obs)))
+    for _ in range(60):
+        state = step(state)
+    return state.obs[:6]
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("student", type=Path)
@@ -56,20 +76,10 @@ def main() -> None:
     env = runs.make_env(meta)
     params = env.make_params(reset_noise=0.0)
 
-    def obs(q):
-        pose = env.arm.pose_with(q, env.kinematics, collide=False)
-        return env._observe(q, pose, jnp.zeros(6), params)[0]
-
-    def settled(teacher):  # the teacher's joints after 60 steps from the reset
-        state = env.reset(jax.random.key(0), params)
-        step = jax.jit(lambda s: env.step(s, teacher(s.obs)))
-        for _ in range(60):
-            state = step(state)
-        return state.obs[:6]
-
+    obs = observer(env, params)
     preds, holds = [], []
     for seed in seeds:
-        q_t = settled(teacher_of(seed)[0])
+        q_t = settled(env, params, teacher_of(seed)[0])
         student, _ = load(a.student / f"seed_{seed}")
         F = lambda q: student(obs(q))  # noqa: E731
         b = np.asarray(F(q_t) - q_t)

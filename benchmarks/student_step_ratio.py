@@ -17,7 +17,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from student_fixed_point import load
+from student_fixed_point import load, observer, settled
 
 from mara_mjx.runtime import runs
 
@@ -37,15 +37,8 @@ def main() -> None:
         env = runs.make_env(meta)
         params = env.make_params(reset_noise=0.0)
 
-        def obs(q):
-            pose = env.arm.pose_with(q, env.kinematics, collide=False)
-            return env._observe(q, pose, jnp.zeros(6), params)[0]
-
-        state = env.reset(jax.random.key(0), params)
-        step = jax.jit(lambda s, teacher=teacher: env.step(s, teacher(s.obs)))
-        for _ in range(60):
-            state = step(state)
-        q_t = state.obs[:6]
+        obs = observer(env, params)
+        q_t = settled(env, params, teacher)
         off = jax.jit(jax.vmap(lambda q: 1000 * jnp.linalg.norm(obs(q)[6:9])))  # mm
         nxt = {
             name: jax.jit(jax.vmap(lambda q, pi=pi: 1000 * jnp.linalg.norm(obs(pi(obs(q)))[6:9])))

@@ -80,9 +80,13 @@ def cache_folder(enabled: bool | None = None, folder: str | None = None) -> Path
     return Path(folder) / FOLDER if enabled and folder else None
 
 
-def cache_key(trainer: Any, state: Any) -> str:
+def cache_key(trainer: Any, state: Any, program: str = "run") -> str:
     """The file name's hash of `key_material`."""
-    return hashlib.sha256(key_material(trainer, state).encode()).hexdigest()[:32]
+    return _hash_name(key_material(trainer, state, program))
+
+
+def _hash_name(material: str) -> str:
+    return hashlib.sha256(material.encode()).hexdigest()[:32]
 
 
 def key_material(trainer: Any, state: Any, program: str = "run") -> str:
@@ -241,7 +245,7 @@ def _load_or_export(
     try:
         leaves = jax.tree.leaves(state)
         material = key_material(trainer, state, program)
-        path = Path(folder) / f"{hashlib.sha256(material.encode()).hexdigest()[:32]}.bin"
+        path = Path(folder) / f"{_hash_name(material)}.bin"
         try:
             exported, stored = _unpack(path.read_bytes(), material)
             _check(exported, leaves, stored, program)
