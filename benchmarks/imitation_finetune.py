@@ -29,6 +29,8 @@ from mara_mjx.ppo.train import make_train
 def main() -> None:
     student, teacher_dir, mode, updates, out = sys.argv[1:6]
     updates = int(updates)
+    if Path(out).exists():  # never write into a run's own folder
+        raise SystemExit(f"error: {out} exists; name a new folder")
     jax.config.update("jax_default_matmul_precision", "highest")
     found = ckpt.find_checkpoint(student)
     arrays, meta = ckpt.load_checkpoint(found)
@@ -59,7 +61,7 @@ def main() -> None:
     for prefix, tree in (("params/", state.params), ("obs_stats/", state.obs_stats)):
         for path, x in jax.tree_util.tree_flatten_with_path(tree)[0]:
             new[prefix + ckpt.leaf_name(path)] = np.asarray(x)
-    (Path(out) / "checkpoints").mkdir(parents=True, exist_ok=True)
+    (Path(out) / "checkpoints").mkdir(parents=True)
     np.savez(Path(out) / "checkpoints" / "ckpt_00000999.npz", **new)
     print(f"saved {out}")
 

@@ -19,7 +19,7 @@ KEEP = ("params/", "obs_stats/", "__meta__", "update", "key")
 
 
 def strip(src: str, dst: str) -> None:
-    with tarfile.open(src) as tin, tarfile.open(dst, "w:gz") as tout:
+    with tarfile.open(src) as tin, tarfile.open(dst, "x:gz") as tout:  # never replaces a file
         for member in tin.getmembers():
             data = tin.extractfile(member).read() if member.isfile() else None
             if data is not None and member.name.endswith(".npz"):
@@ -33,4 +33,7 @@ def strip(src: str, dst: str) -> None:
 
 
 if __name__ == "__main__":
-    strip(sys.argv[1], sys.argv[2])
+    try:
+        strip(sys.argv[1], sys.argv[2])
+    except FileExistsError:
+        sys.exit(f"error: {sys.argv[2]} exists; name a new file")
