@@ -222,3 +222,27 @@ def test_a_single_student_run_takes_the_teacher_seed_of_its_own_seed(tmp_path):
         load_teacher(tmp_path, "MARA", seed=7)
     with pytest.raises(ValueError, match="seed_1001"):  # its own seed's folder: loaded
         load_teacher(tmp_path, "MARA", seed=1001)  # (empty here: no checkpoint in it)
+
+
+def test_a_teacher_that_deploys_a_plan_teaches_its_step(tmp_path):
+    """The CLI default of the Orient tasks deploys the plan and its restarts (orient_first);
+    as a teacher it acts one step at a time: the loaded policy has neither, and its action
+    is the saved policy's own step, not the 16-step landing its deployment commands."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_export_plots import make_run
+
+    from mara_mjx.ppo.teacher import load_teacher
+
+    run = make_run(tmp_path / "run", "MARAOrient", True, relative=True,
+                   ik_prior="residual", ik_gate=0.1, plan_steps=16, plan_starts=2)  # fmt: skip
+    deployed = make_policy(str(run))
+    teacher = load_teacher(run, "MARAOrient")
+    assert deployed.config.policy.plan_steps == 16 and deployed.config.policy.plan_starts == 2
+    assert teacher.config.policy.plan_steps == 0 and teacher.config.policy.plan_starts == 0
+    obs = mara_mjx.make("MARAOrient").reset(jax.random.key(0)).obs[None]
+    step = deployed.distribution(obs)[0]
+    np.testing.assert_array_equal(teacher(obs), step)
+    assert not np.allclose(deployed(obs), step, atol=1e-3)  # the plan's landing differs

@@ -403,13 +403,16 @@ PRESETS["random_target_plan_guard"] = PRESETS["random_target_plan"].replace(
 # the TCP closes in (ik_orient_first), staggered episodes (synchronised ones let the
 # converged policies drift), two training-only rules (the roll gate, the standoff's loose
 # form), a probe of the saved policy from the reset after every jitted call (the one-step
-# det_error_mm cannot show the orient-first rule) and a deployed 5-mm collision guard.
+# det_error_mm cannot show the orient-first rule), a deployed 5-mm collision guard and the
+# deployed plan with its restarts (section 60: fresh seeds held wrong fixed points).
 PRESETS["orient_first"] = PRESETS["random_target_orient"].replace(
     total_timesteps=PRESETS["default"].ppo.total_timesteps,
     ik_orient_first=True,
     train_ik_gate_roll=True,
     probe_reach_steps=100,
     collision_guard_mm=5.0,
+    plan_steps=16,
+    plan_starts=16,
 )
 
 

@@ -2,7 +2,10 @@
 alone learns to do what a teacher's deployed policy does.
 
 The teacher is any policy a run of the same task saved, deployed rules included (the IK
-residual and its gates, the orient-first rule, the IK finish, the collision guard). The
+residual and its gates, the orient-first rule, the IK finish, the collision guard), but
+for the plan and its restarts (PolicyConfig.plan_steps, plan_starts): the teacher acts
+one step at a time, as its network was trained (a plan costs 16 or more of its calls per
+label; benchmarks/NOTES.md section 60). The
 student trains on the states its own sampled policy visits (DAgger without a mixing
 schedule: the teacher is asked at every visited state and never acts), and its loss is
 the negative log-likelihood of the teacher's action (clipped to the joint box, what the
@@ -45,8 +48,8 @@ def _load(path: Path, env_name: str) -> Policy:
         )
     policy = policy_from_checkpoint(arrays, meta)
     # its training seed does not act in the deterministic policy; one value keeps the
-    # state's structure the same whichever seed's teacher it holds
-    return policy.replace(config=policy.config.replace(seed=0))
+    # state's structure the same whichever seed's teacher it holds; its step, not its plan
+    return policy.replace(config=policy.config.replace(seed=0, plan_steps=0, plan_starts=0))
 
 
 def load_teacher(path: str | Path, env_name: str, seed: int | None = None) -> Policy:
