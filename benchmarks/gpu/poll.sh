@@ -41,6 +41,20 @@ while :; do
 done
 packcells
 send
+# SNAP="WORK..." (work folders, e.g. /tmp/work/dt_MARAOrient): each run folder there with
+# only its seeds' newest checkpoint, as $OUT/snap_<work>.tgz, every call: a machine taken
+# back mid-training (section 60 lost 800 s of students so) leaves the last one, which the
+# robustness study resumes (`continue_argv`) from the same work folder on the next machine
+for w in $SNAP; do
+  [ -d "$w/runs" ] || continue
+  n=$(basename "$w")
+  (cd "$(dirname "$w")" && tar cf /tmp/snap_$n.tar --exclude='*/checkpoints/ckpt_*' "$n" \
+    && for s in "$n"/runs/*/seed_*/checkpoints; do
+         last=$(ls "$s" | grep '^ckpt_' | sort | tail -1)
+         [ -n "$last" ] && tar rf /tmp/snap_$n.tar "$s/$last"
+       done
+    gzip -c /tmp/snap_$n.tar > "$OUT/snap_$n.tgz"; rm -f /tmp/snap_$n.tar)
+done
 cp /tmp/res/cold.log /tmp/res/studies.log "$OUT/" 2>/dev/null
 tail -c 200000 /tmp/res_driver.log > "$OUT/res_driver.log" 2>/dev/null  # the driver's own errors (study 61 lost two studies' reason)
 tail -n 3 /tmp/res/*.log 2>/dev/null | tail -n 30
