@@ -31,7 +31,8 @@ ORIENT_FIRST = {
     "ik_orient_first": True,
     "collision_guard_mm": 5.0,
 }
-"""PRESETS["orient_first"]'s deployed rules (its training-only ones are not exported)."""
+"""PRESETS["orient_first"]'s deployed rules but its plan and restarts (test_plan.py exports
+those; here they would cost minutes), its training-only ones not being exported."""
 SIDES = (1.0 - 1e-3, 1.0 + 1e-3)  # inside and outside each threshold
 ROWS = 144  # every JAX evaluation here is padded to this batch: one compile
 

@@ -100,7 +100,7 @@ def test_a_plan_is_refused_at_another_control_period(tmp_path, monkeypatch):
     assert not (tmp_path / "p.onnx").exists()
 
 
-def test_plan_steps_exports_to_onnx_and_matches(tmp_path):
+def test_plan_steps_exports_to_onnx_and_matches(tmp_path, capsys):
     pytest.importorskip("jax2onnx")
     ort = pytest.importorskip("onnxruntime")
     from mara_mjx.cli.export import ExportError, export_policy
@@ -112,6 +112,8 @@ def test_plan_steps_exports_to_onnx_and_matches(tmp_path):
                    constant_actor=True, **IK)  # fmt: skip
     # with one restart (PolicyConfig.plan_starts): its graph holds the own plan too
     out = export_policy(run, tmp_path / "policy.onnx", plan_starts=1)  # self-checked vs JAX
+    # a planned graph without held commands: the note on servos (every call imagines)
+    assert "--commit_rad 0.01" in capsys.readouterr().err
     with pytest.raises(ExportError, match="plan_steps"):
         export_policy(run, tmp_path / "policy.npz")
     policy = with_deployed(make_policy(run), plan_starts=1)

@@ -440,3 +440,44 @@ def test_ctrl_c_keeps_the_video_shown_so_far(run_dir, tmp_path, monkeypatch, cap
 
     assert imageio_ffmpeg.count_frames_and_secs(str(out))[0] == 4
     assert sorted(p.name for p in tmp_path.iterdir()) == ["stopped.mp4"]
+
+
+def test_play_deploys_the_plan_and_guard_overrides_as_evaluate_does(tmp_path, monkeypatch):
+    """`play RUN --plan_steps 0` (a planned checkpoint, orient_first's restarts) plays the
+    policy's own step, as `evaluate --plan_steps 0` judges it; `--plan_steps K` plans; a
+    plan at another control period is refused as evaluate refuses it."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_export_plots import make_run
+
+    from mara_mjx.ppo import policy as policy_module
+    from mara_mjx.ppo.policy import make_policy
+
+    run = make_run(tmp_path / "run", "MARA", True, relative=True, plan_steps=2, plan_starts=1)
+    policy = make_policy(str(run))
+    env = mara_mjx.make("MARA", max_episode_steps=2)
+    calls = []
+    real = policy_module.planned_landing
+    monkeypatch.setattr(policy_module, "planned_landing", lambda *a: calls.append(1) or real(*a))
+
+    class Writer:
+        fps = 20.0
+
+        def append(self, frame):
+            pass
+
+    class Renderer:
+        def frame(self, q, target_pos, target_quat):
+            return np.zeros((1, 1, 3), np.uint8)
+
+    def play_with(**overrides):
+        calls.clear()
+        config = EvalConfig(episodes=1, noise=0.0, **overrides)
+        play.run_episodes(env, policy, config, None, Renderer(), Writer(), hold=0.0)
+        return bool(calls)
+
+    assert not play_with(plan_steps=0)  # off: the policy's own step, no landing imagined
+    assert play_with()  # as trained: the checkpoint's plan
+    slow = mara_mjx.make("MARA", max_episode_steps=2, control_dt=0.1)
+    with pytest.raises(ValueError, match="plan"):
+        play.run_episodes(slow, policy, EvalConfig(episodes=1, noise=0.0), None, Renderer(),
+                          Writer(), hold=0.0)  # fmt: skip

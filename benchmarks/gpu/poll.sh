@@ -42,21 +42,37 @@ done
 packcells
 send
 # SNAP="WORK..." (work folders, e.g. /tmp/work/dt_MARAOrient): each run folder there with
-# only its seeds' newest checkpoint, as $OUT/snap_<work>.tgz, every call: a machine taken
-# back mid-training (section 60 lost 800 s of students so) leaves the last one, which the
-# robustness study resumes (`continue_argv`) from the same work folder on the next machine
-for w in $SNAP; do
-  [ -d "$w/runs" ] || continue
-  n=$(basename "$w")
-  (cd "$(dirname "$w")" && tar cf /tmp/snap_$n.tar --exclude='*/checkpoints/ckpt_*' "$n" \
-    && for s in "$n"/runs/*/seed_*/checkpoints; do
-         last=$(ls "$s" | grep '^ckpt_' | sort | tail -1)
-         [ -n "$last" ] && tar rf /tmp/snap_$n.tar "$s/$last"
-       done
-    gzip -c /tmp/snap_$n.tar > "$OUT/snap_$n.tgz"; rm -f /tmp/snap_$n.tar)
-done
+# only the newest checkpoint all its seeds have (what `--resume` needs), as
+# $OUT/snap_<work>.tgz.NN (15-MB parts), every call the files allow (at most 8 files, about
+# 64 MB, with this call's batch and logs): a machine taken back mid-training (section 60
+# lost 800 s of students so) leaves the last one, which the robustness study resumes
+# (`continue_argv`) from the same work folder on the next machine
 cp /tmp/res/cold.log /tmp/res/studies.log "$OUT/" 2>/dev/null
 tail -c 200000 /tmp/res_driver.log > "$OUT/res_driver.log" 2>/dev/null  # the driver's own errors (study 61 lost two studies' reason)
+for w in $SNAP; do
+  [ -d "$w/runs" ] || continue
+  n=$(basename "$w"); t="/tmp/snap_$n.tar"
+  rm -f "$t" "$t.gz"
+  (cd "$(dirname "$w")" || exit 1
+   tar cf "$t" --warning=no-file-changed --exclude='*/checkpoints/*' "$n"
+   [ $? -le 1 ] || exit 1  # 1: a file changed while read (a log being written)
+   for r in "$n"/runs/*/; do
+     k=$(ls -d "$r"seed_*/checkpoints 2>/dev/null | wc -l)
+     [ "$k" -gt 0 ] || continue
+     last=$(for c in "$r"seed_*/checkpoints; do ls "$c" | grep -E '^ckpt_[0-9]+\.npz$'; done \
+       | sort | uniq -c | awk -v k="$k" '$1 == k {print $2}' | tail -n 1)
+     [ -n "$last" ] && tar rf "$t" "$r"seed_*/checkpoints/"$last"
+   done
+   gzip "$t") || { echo "snap $n failed"; continue; }
+  files=$(ls "$OUT" | wc -l); bytes=$(du -sb "$OUT" | cut -f1); size=$(stat -c %s "$t.gz")
+  parts=$(( (size + 15728639) / 15728640 ))
+  if [ $((files + parts)) -le 8 ] && [ $((bytes + size)) -le 62000000 ]; then
+    split -b 15m -d "$t.gz" "$OUT/snap_$n.tgz." && echo "snap $n: $size bytes in $parts parts"
+  else
+    echo "snap $n ($size bytes) left for the next call: $files files, $bytes bytes already"
+  fi
+  rm -f "$t.gz"
+done
 tail -n 3 /tmp/res/*.log 2>/dev/null | tail -n 30
 for p in $(ls /tmp/work/*/runs/*/seed_*/progress.csv 2>/dev/null | head -n 1); do echo "$p: $(tail -n 1 "$p" | cut -d, -f1-4)"; done
 nvidia-smi --query-gpu=name,utilization.gpu,memory.used --format=csv,noheader

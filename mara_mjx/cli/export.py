@@ -252,6 +252,12 @@ def export_policy(
         except onnx_graph.OnnxGraphError as e:
             raise ExportError(f"{str(source)!r}: {e}") from e
         _write_atomic(out_path, lambda f: onnx_graph.save(model, f))
+        if config.plan_steps and not config.commit_rad:  # (orient_first's: 0.16-0.8 s a call)
+            print(f"note: every call of {out_path} imagines {config.plan_steps} policy steps "
+                  f"(and up to {config.plan_starts} x 32 more where they miss: plan_starts); "
+                  "for servos at 20 Hz export with --commit_rad 0.01, so that the runner asks "
+                  "it only once the arm has arrived or stopped (docs/sim-to-real-and-"
+                  "deployment.md)", file=sys.stderr)  # fmt: skip
         return out_path
     if keep_finish:  # the numpy policy runs it (mara_mjx/deploy/ik_numpy.py)
         from mara_mjx.deploy.ik_numpy import finish_meta

@@ -330,9 +330,12 @@ def run_episodes(
     params, keys = episode_plan(env, config)  # evaluate's episodes, one at a time
     reset = jax.jit(env.reset)
 
-    from mara_mjx.ppo.evaluation import deployed_commit, held_action
+    from mara_mjx.ppo.evaluation import deployed_commit, deployed_policy, held_action
 
-    commit = deployed_commit(policy, config)  # held commands (commit_rad), as evaluate's
+    # the guard, the plan and its restarts as evaluate deploys them (--collision_guard_mm,
+    # --plan_steps, --plan_starts), then held commands (commit_rad)
+    policy = deployed_policy(policy, config, env)
+    commit = deployed_commit(policy, config)
     bounds = (env.joint_lower, env.joint_upper)
 
     @jax.jit

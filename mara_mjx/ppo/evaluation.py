@@ -146,11 +146,7 @@ def make_evaluate(
         max_step = (velocity * step_s)[..., None] if velocity.ndim else velocity * step_s
 
     def evaluate(policy: Policy) -> dict[str, jax.Array]:
-        if config.collision_guard_mm >= 0.0:
-            policy = with_collision_guard(policy, config.collision_guard_mm)
-        policy = deployed_plan(policy, config)
-        if hasattr(policy, "config"):  # a checkpoint's Policy (an exported file has none)
-            check_plan_period(policy.config.policy.plan_steps, env)  # (at trace time)
+        policy = deployed_policy(policy, config, env)
         commit = deployed_commit(policy, config)
         # the joint limits the env clips to (a MARA env's; only where a rule needs them)
         bounds = (
@@ -204,6 +200,19 @@ def held_action(
     if commit > 0.0:
         action = committed(q, action, held, q_previous, commit, *bounds, xp=jnp)
     return action, q
+
+
+def deployed_policy(policy: Any, config: EvalConfig, env: Any) -> Any:
+    """`policy` as the evaluation loop and `play` run it: EvalConfig's collision guard
+    (where >= 0) and plan overrides applied (`with_collision_guard`, `deployed_plan`), the
+    plan's control period checked against `env`'s (a checkpoint's Policy; an exported
+    file's carries its own rules). Held commands are applied around it (`held_action`)."""
+    if config.collision_guard_mm >= 0.0:
+        policy = with_collision_guard(policy, config.collision_guard_mm)
+    policy = deployed_plan(policy, config)
+    if hasattr(policy, "config"):  # a checkpoint's Policy (an exported file has none)
+        check_plan_period(policy.config.policy.plan_steps, env)  # (at trace time)
+    return policy
 
 
 def deployed_plan(policy: Any, config: EvalConfig) -> Any:
