@@ -27,7 +27,7 @@ one() {  # TASK: teacher study, student study, default study, each packed as it 
   local student
   read -ra student <<< "${STUDENT:-distill}"
   study cli cli
-  teacher=$(ls -d $work/runs/$t-cli-*/ | head -1)
+  teacher=$(ls -dt $work/runs/$t-cli-*/ | head -1)  # the newest: this study's
   keep "$teacher" /tmp/res/ck_dt_${t}_cli.tgz
   study ${student[0]} "distill --teacher ${teacher%/}${student[1]:+ ${student[*]:1}}"
   # the student run this study just trained: the newest distill folder (a work folder
