@@ -576,6 +576,9 @@ def test_orient_task_default_trains_and_its_checkpoint_runs_without_the_training
     ppo = {**saved["policy"], **saved["curriculum"]}  # the sections the fields moved to
     assert ppo["ik_orient_first"] and ppo["train_ik_gate_roll"] and ppo["stagger_episodes"]
     assert ppo["train_ik_orient_loose"] and ppo["probe_reach_steps"] == 5
+    # deployed: the plan and its restarts (benchmarks/NOTES.md section 60), which
+    # `evaluate` below runs as the checkpoint's own rules
+    assert (ppo["plan_steps"], ppo["plan_starts"]) == (16, 16)
     rows = read_rows(out / "progress.csv")  # one update per call: every row probed
     assert rows and all(float(r["reach_error_mm"]) > 0.0 for r in rows), rows
     report = tmp_path / "eval.json"
