@@ -21,7 +21,9 @@ import jax
 import numpy as np
 
 from mara_mjx.ppo import checkpoint as ckpt
+from mara_mjx.ppo.evaluation import deployed_plan
 from mara_mjx.ppo.policy import policy_from_checkpoint
+from mara_mjx.ppo.run_config import EvalConfig
 from mara_mjx.runtime import runs
 
 
@@ -38,14 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     jax.config.update("jax_default_matmul_precision", "highest")
     arrays, meta = ckpt.load_checkpoint(ckpt.find_checkpoint(a.run))
-    policy = policy_from_checkpoint(arrays, meta)
-    plan = {
-        k: v for k, v in (("plan_steps", a.plan_steps), ("plan_starts", a.plan_starts)) if v >= 0
-    }
-    if plan.get("plan_steps") == 0:
-        plan["plan_starts"] = 0
-    if plan:
-        policy = policy.replace(config=policy.config.replace(**plan))
+    plan = EvalConfig(plan_steps=a.plan_steps, plan_starts=a.plan_starts)  # evaluate's
+    policy = deployed_plan(policy_from_checkpoint(arrays, meta), plan)
     env = runs.make_env(meta)
     params = env.make_params(reset_noise=a.noise)
     keys = jax.random.split(jax.random.key(a.key), a.starts)

@@ -56,7 +56,7 @@ def screen(folder: Path, ks: list[int], poses: int, eval_seed: int) -> dict:
 
     policy = load_policy(folder)
     steps = policy.config.policy.plan_steps or 16
-    act = policy.replace(config=policy.config.replace(plan_steps=0, plan_starts=0))
+    act = policy.one_step()
     env = runs.make_env(json.loads((folder / "config.json").read_text()))
     if not getattr(env.task, "orientation", False) or not hasattr(env, "region"):
         raise SystemExit(f"{folder}: not a random-target Orient task")

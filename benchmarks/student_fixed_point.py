@@ -33,8 +33,7 @@ def load(folder: Path):
     """A run's policy and meta: its one step (a deployed plan and its restarts cleared, as
     a teacher acts for its students: `mara_mjx.ppo.teacher`)."""
     arrays, meta = ckpt.load_checkpoint(ckpt.find_checkpoint(folder))
-    policy = policy_from_checkpoint(arrays, meta)
-    return policy.replace(config=policy.config.replace(plan_steps=0, plan_starts=0)), meta
+    return policy_from_checkpoint(arrays, meta).one_step(), meta
 
 
 def observer(env, params):

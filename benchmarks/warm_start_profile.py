@@ -143,20 +143,24 @@ def cogc(backend, computation, *a, **k):
 
 
 compiler.compile_or_get_cached = cogc
-_orig_key = compiler._get_cache_key
 
 
-def get_key(*a, **k):
-    s = now()
-    try:
-        return _orig_key(*a, **k)
-    finally:
-        r = getattr(_tls, "rec", None)
-        if r is not None:
-            r["key_s"] = r.get("key_s", 0) + now() - s
+def timed_into(field, orig):
+    """`orig` with its seconds added to `field` of the program being compiled or loaded."""
+
+    def wrapper(*a, **k):
+        s = now()
+        try:
+            return orig(*a, **k)
+        finally:
+            r = getattr(_tls, "rec", None)
+            if r is not None:
+                r[field] = r.get(field, 0) + now() - s
+
+    return wrapper
 
 
-compiler._get_cache_key = get_key
+compiler._get_cache_key = timed_into("key_s", compiler._get_cache_key)
 
 
 def get_exec(cache_key, compile_options, backend, executable_devices):
@@ -185,20 +189,7 @@ def get_exec(cache_key, compile_options, backend, executable_devices):
 
 
 cc.get_executable_and_time = get_exec
-_orig_bc = compiler.backend_compile_and_load
-
-
-def bcl(*a, **k):
-    s = now()
-    try:
-        return _orig_bc(*a, **k)
-    finally:
-        r = getattr(_tls, "rec", None)
-        if r is not None:
-            r["xla_compile_s"] = now() - s
-
-
-compiler.backend_compile_and_load = bcl
+compiler.backend_compile_and_load = timed_into("xla_compile_s", compiler.backend_compile_and_load)
 
 # ---------------------------------------------------------------- the CLI's steps
 import mara_mjx  # noqa: E402

@@ -116,7 +116,7 @@ def export_policy(
     from mara_mjx.envs.arm import JOINTS
     from mara_mjx.ppo import checkpoint as ckpt
     from mara_mjx.ppo import policy as policy_io
-    from mara_mjx.ppo.parametrisation import check_plan_period, plan_overrides
+    from mara_mjx.ppo.parametrisation import PLAN_START_STEPS, check_plan_period, plan_overrides
     from mara_mjx.runtime import outputs, runs
 
     out_path = Path(out_path)
@@ -254,7 +254,7 @@ def export_policy(
         _write_atomic(out_path, lambda f: onnx_graph.save(model, f))
         if config.plan_steps and not config.commit_rad:  # (orient_first's: 0.16-0.8 s a call)
             print(f"note: every call of {out_path} imagines {config.plan_steps} policy steps "
-                  f"(and up to {config.plan_starts} x 32 more where they miss: plan_starts); "
+                  f"(and up to {config.plan_starts} x {PLAN_START_STEPS} more where they miss); "
                   "for servos at 20 Hz export with --commit_rad 0.01, so that the runner asks "
                   "it only once the arm has arrived or stopped (docs/sim-to-real-and-"
                   "deployment.md)", file=sys.stderr)  # fmt: skip

@@ -44,13 +44,18 @@ class Policy:
     def network(self) -> ActorCritic:
         return make_network(self.config, self.action_size)
 
+    def one_step(self) -> Policy:
+        """This policy without its deployed plan and restarts (PolicyConfig.plan_steps,
+        plan_starts): its own next step, what the plan imagines and a teacher labels with."""
+        return self.replace(config=self.config.replace(plan_steps=0, plan_starts=0))
+
     def __call__(self, obs: jax.Array) -> jax.Array:
         """obs (..., obs_size) raw -> action (..., action_size) rad (with
         PolicyConfig.plan_steps, the landing of that many imagined train-driver steps)."""
         steps = self.config.policy.plan_steps
         if steps:  # the policy itself, without the plan, is what the plan imagines
             starts = self.config.policy.plan_starts
-            act = self.replace(config=self.config.replace(plan_steps=0, plan_starts=0))
+            act = self.one_step()
             if starts:
                 return restarted_landing(act, obs, steps, starts)
             return planned_landing(act, obs, steps)

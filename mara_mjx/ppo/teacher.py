@@ -46,10 +46,10 @@ def _load(path: Path, env_name: str) -> Policy:
             f"teacher {str(path)!r} was trained on {meta['env_name']}, not {env_name}: a "
             "teacher must be a run of the task the student trains on"
         )
-    policy = policy_from_checkpoint(arrays, meta)
+    policy = policy_from_checkpoint(arrays, meta).one_step()  # its step, not its plan
     # its training seed does not act in the deterministic policy; one value keeps the
-    # state's structure the same whichever seed's teacher it holds; its step, not its plan
-    return policy.replace(config=policy.config.replace(seed=0, plan_steps=0, plan_starts=0))
+    # state's structure the same whichever seed's teacher it holds
+    return policy.replace(config=policy.config.replace(seed=0))
 
 
 def load_teacher(path: str | Path, env_name: str, seed: int | None = None) -> Policy:
