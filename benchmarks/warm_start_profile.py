@@ -3,7 +3,7 @@ section 61): imports, env build, the trace cache, each program's compile or cach
 (JAX's compilation-cache internals patched), the first calls and the outputs, as seconds
 from this process's start, into OUT.json (and OUT.json.exit: the time at exit).
 
-    python benchmarks/warm_start_profile.py OUT.json [--bg] -- TRAIN ARGS...
+    python benchmarks/warm_start_profile.py OUT.json [--bg] -- TRAIN ARGS...   # OUT.json: a new file
     python benchmarks/warm_start_table.py OUT1.json OUT2.json ...   # the phase table
 
 --bg forces ppo.warmup's background compile (a GPU host's path; off on fewer than 4
@@ -26,6 +26,9 @@ def _proc_start():
 
 T0 = _proc_start()
 _OUT0 = sys.argv[1]
+_taken = [p for p in (_OUT0, _OUT0 + ".exit", _OUT0 + ".exit0") if os.path.exists(p)]
+if _taken:  # never replaces a file (a user's, or an earlier run's timings)
+    sys.exit(f"error: {_taken[0]} exists; name a new OUT.json")
 import atexit as _atexit  # noqa: E402  (after the start time: it is what is timed)
 
 
