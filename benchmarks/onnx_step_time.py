@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
             session.run(None, {name: row[None]})
             times.append(time.perf_counter() - start)
         ms = 1e3 * np.asarray(times[4:])  # (the first calls warm up)
-        print(f"  {label}: median {np.median(ms):.1f} ms, p95 {np.percentile(ms, 95):.1f} ms")
+        print(f"  {label}: median {np.median(ms):.3f} ms, p95 {np.percentile(ms, 95):.3f} ms")
     return 0
 
 

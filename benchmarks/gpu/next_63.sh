@@ -1,13 +1,15 @@
 #!/bin/bash
 # Issue 31, after section 60 (the Orient tasks' CLI default now deploys the plan's restarts):
-#   1. NOISE=1 (default): the cause-level alternative, `cli --reset_noise 0.02` (trained
-#      from the paper evaluation's noisy starts) on seeds 1584-1599, where the CLI default
+#   1. NOISE=1 (default; NOISE=last: after 2; NOISE=0: not at all): the cause-level
+#      alternative, `cli --reset_noise 0.02` (trained from the paper evaluation's noisy
+#      starts) on seeds 1584-1599, where the CLI default
 #      lost 1597 (MARAOrient) and 1588 (MARACollisionOrient), judged WITHOUT the restarts
 #      (--plan_steps 0): does training from those starts remove the fixed points? Kept.
 #   2. distill_51.sh OFFSET (default 1600, fresh) for TASK: the CLI default (the fresh-seed
 #      check of today's preset, judged with its restarts) and then its students with
 #      STUDENT (default: section 59's lookahead, K = 2).
-# One task per lease (TASK, default MARAOrient; the students take about 800 s on an H100):
+# One task per lease (TASK, default MARAOrient; on an H100 MARAOrient's teachers took 145 s
+# and its students 825 s, section 62; MARACollisionOrient next: NOISE=last, the students first):
 #   TASK=MARAOrient setsid nohup bash benchmarks/gpu/next_63.sh > /tmp/res_driver.log 2>&1 < /dev/null & disown
 # then `SNAP=/tmp/work/dt_$TASK bash benchmarks/gpu/poll.sh 540` in the next calls, back to
 # back, until DRIVER_DONE (SNAP: the students' newest checkpoints come back on every call).
@@ -18,9 +20,11 @@ rm -f /tmp/res/studies.log /tmp/res/sent
 export KEEP_LOG=1
 t=${TASK:-MARAOrient}
 export STUDENT="${STUDENT:-lookahead --imitation_spread 0.05 --reset_noise 0.02 --imitation_lookahead 2}"
-if [ "${NOISE:-1}" = 1 ]; then
+noise() {
   robust noise_$t /tmp/work/noise_$t $t "cli --reset_noise 0.02" --seed_offset 1584 --plan_steps 0
   keep "$(ls -dt /tmp/work/noise_$t/runs/$t-cli-*/ | head -1)" /tmp/res/ck_noise_$t.tgz
-fi
+}
+[ "${NOISE:-1}" = 1 ] && noise
 bash benchmarks/gpu/distill_51.sh ${OFFSET:-1600} $t
+[ "${NOISE:-1}" = last ] && noise
 echo DRIVER_DONE >> /tmp/res/studies.log
