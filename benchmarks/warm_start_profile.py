@@ -3,7 +3,7 @@ section 61): imports, env build, the trace cache, each program's compile or cach
 (JAX's compilation-cache internals patched), the first calls and the outputs, as seconds
 from this process's start, into OUT.json (and OUT.json.exit: the time at exit).
 
-    python benchmarks/warm_start_profile.py OUT.json [--bg] -- TRAIN ARGS...   # OUT.json: a new file
+    python benchmarks/warm_start_profile.py OUT.json [--bg] -- TRAIN ARGS...  # OUT.json: new
     python benchmarks/warm_start_table.py OUT1.json OUT2.json ...   # the phase table
 
 --bg forces ppo.warmup's background compile (a GPU host's path; off on fewer than 4
