@@ -246,9 +246,10 @@ def test_tta_study_quick(runs):
     cold, warm = found["tta", "cold", "cli default"], found["tta", "warm", "cli default"]
     det = found["xla_ops", "off", "deterministic"]
     nondet = found["xla_ops", "off", "non-deterministic"]
-    assert len(found) == 4
+    assert len(found) == 6
     for r in found.values():
-        assert r["task"] == "MARA" and r["seed"] == 0 and r["env_steps"] == 64
+        n = r.get("num_seeds", 1)
+        assert r["task"] == "MARA" and r["seed"] == 0 and r["env_steps"] == 64 * n
         assert "python -m mara_mjx.train --env MARA --seed 0 " in r["command"]
         assert abs(r["launch_offset_s"]) < 1.0  # the child's start, read from /proc
         assert 0 < r["first_call_s"] <= r["cli_command_time_s"] <= r["command_s"]
@@ -258,6 +259,15 @@ def test_tta_study_quick(runs):
             assert r[f"to_{mm}mm_s"] is None and r[f"to_{mm}mm_env_steps"] is None
     assert len({r["command"].split("--compilation_cache ")[1] for r in (cold, warm)}) == 1
     assert warm["same_bits_as_cold"] is True  # its programs from the cache: the same bits
+    # --seeds 2 in one program: every seed's folder read, the rates summed, bitwise again
+    group_cold = found["seeds", "cold", "cli default"]
+    group_warm = found["seeds", "warm", "cli default"]
+    assert "--seed 0 --seeds 2 " in group_warm["command"] and group_warm["num_seeds"] == 2
+    assert [p["env_steps"] for p in group_warm["per_seed"]] == [64, 64]
+    rates = [p["env_steps_per_s"] for p in group_warm["per_seed"]]
+    assert group_warm["env_steps_per_s"] == sum(rates) and min(rates) > 0
+    assert group_warm["same_bits_as_cold"] is True
+    assert group_cold["state_hash"] == group_warm["state_hash"] != warm["state_hash"]
     assert "--xla_gpu_deterministic_ops=true" in det["xla_flags_given"]
     assert "--xla_gpu_deterministic_ops=false" in nondet["xla_flags_given"]
     assert "xla_gpu_deterministic_ops" not in cold["xla_flags_given"]  # the CLI chooses
@@ -301,6 +311,28 @@ def test_tta_reads_the_cli_times_on_the_launch_clock(tmp_path):
     m = median_record(runs, "cold")
     assert m["to_5mm_s"] == 5.0 and m["reached_5mm"] == 2  # unreached: later than any
     assert m["to_1mm_s"] is None and m["reached_1mm"] == 1  # the median seed never got there
+
+
+def test_tta_reads_a_several_seed_run_as_one_record(tmp_path):
+    """`--seeds N`'s folder: the seeds' rates summed (one program), times as medians."""
+    from mara_mjx.bench.tta import read_seeds
+
+    for seed, (rate, hit_s) in {3: (100.0, 4.0), 4: (300.0, None), 5: (200.0, 6.0)}.items():
+        folder = tmp_path / f"seed_{seed}"
+        folder.mkdir()
+        rows = ["update,env_steps,time_s,steps_per_s,det_error_mm", "1,10,2.0,1.0,9.0"]
+        rows += [f"2,20,3.0,{rate},{rate / 100}"]
+        (folder / "progress.csv").write_text("\n".join(rows) + "\n")
+        hits = {"5mm": {"time_s": hit_s, "env_steps": 20}} if hit_s else {}
+        summary = {"time_to_accuracy": hits, "command_time_s": 9.0 + seed}
+        (folder / "summary.json").write_text(json.dumps(summary))
+    r = read_seeds(tmp_path, 3, 3, offset=0.5)
+    assert r["num_seeds"] == 3 and r["env_steps"] == 60
+    assert r["env_steps_per_s"] == 600.0  # 100 + 300 + 200
+    assert r["to_5mm_s"] == 6.5 and r["reached_5mm"] == 2  # median of 4.5, 6.5, never
+    assert r["to_1mm_s"] is None and r["final_det_error_mm"] == 2.0
+    assert (r["first_call_s"], r["cli_command_time_s"]) == (2.5, 14.5)
+    assert r["state_hash"] is None and len(r["per_seed"]) == 3
 
 
 def test_compile_clock_counts_overlapping_spans_once():

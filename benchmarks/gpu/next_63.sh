@@ -8,11 +8,13 @@
 #   2. distill_51.sh OFFSET (default 1600, fresh) for TASK: the CLI default (the fresh-seed
 #      check of today's preset, judged with its restarts) and then its students with
 #      STUDENT (default: section 59's lookahead, K = 2).
-# One task per lease (TASK, default MARAOrient; on an H100 MARAOrient's teachers took 145 s
-# and its students 825 s, section 62; MARACollisionOrient next: NOISE=last, the students first):
+# One task per lease (TASK, default MARAOrient; on an H100 MARAOrient's teachers took 147 s
+# and its students 818 s, section 62; MARACollisionOrient next: NOISE=last, the students first):
 #   TASK=MARAOrient setsid nohup bash benchmarks/gpu/next_63.sh > /tmp/res_driver.log 2>&1 < /dev/null & disown
 # then `SNAP=/tmp/work/dt_$TASK bash benchmarks/gpu/poll.sh 540` in the next calls, back to
 # back, until DRIVER_DONE (SNAP: the students' newest checkpoints come back on every call).
+# SEEDS_TTA="16" (or "1 16 32"): last, issue 35's `benchmark tta --parts seeds` on
+# MARACollisionOrient's CLI default (1e7 env steps per seed, cold and warm; ~2 min per count).
 # QUICK=1: the studies' tiny CPU settings, for a check before a GPU call.
 cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
@@ -27,4 +29,10 @@ noise() {
 [ "${NOISE:-1}" = 1 ] && noise
 bash benchmarks/gpu/distill_51.sh ${OFFSET:-1600} $t
 [ "${NOISE:-1}" = last ] && noise
+if [ -n "$SEEDS_TTA" ]; then  # issue 35: PPO env steps/s with --seeds N, bits cold vs warm
+  python -m mara_mjx.benchmark tta --parts seeds --seeds 1000 --seed_counts $SEEDS_TTA \
+    ${QUICK:+--quick} --out /tmp/res/tta_seeds > /tmp/res/tta_seeds.log 2>&1
+  echo "tta_seeds DONE $?" >> /tmp/res/studies.log
+  pack tta_seeds
+fi
 echo DRIVER_DONE >> /tmp/res/studies.log

@@ -14,6 +14,7 @@ this one).
 from __future__ import annotations
 
 import math
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -157,7 +158,10 @@ def plot(records: list[dict[str, Any]], title: str, path: Path) -> None:
     ax.scatter([], [], c="tab:red", s=18, label="failed seed")
     ax.axhline(1.0, color="grey", lw=0.8, ls="--")
     ax.set_xticks(range(len(groups)))
-    ax.set_xticklabels([f"{t}\n{r}" for t, r in groups], fontsize=7)
+    # a recipe with a long flag list (a teacher's path) wrapped, not cut off at the edge
+    wrap = max(24, int(40 * max(6.0, 1.2 * len(groups) + 2) / 6.0 / len(groups)))
+    labels = [t + "\n" + textwrap.fill(r, wrap, break_on_hyphens=False) for t, r in groups]
+    ax.set_xticklabels(labels, fontsize=7)
     ax.set_yscale("log")
     from mara_mjx.viz.plots import finish_figure
 

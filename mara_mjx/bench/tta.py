@@ -2,7 +2,7 @@
 as a user of the train CLI sees it, with the PPO's speed under XLA's GPU-op choices and
 the env step against the device's ceilings (issue 14).
 
-On the one task of `--tasks` (default MARACollisionOrient), three parts (`--parts`):
+On the one task of `--tasks` (default MARACollisionOrient), four parts (`--parts`):
 
 tta      For each of `--seeds`, the user's command, as a fresh subprocess:
              python -m mara_mjx.train --env TASK --seed S [--preset P] --evaluate false
@@ -29,6 +29,12 @@ xla_ops  For the first seed, the same command (no persistent cache: `--compilati
          with XLA's deterministic GPU ops and with XLA's defaults. The tta runs give the
          CLI's default, the third choice. The flag is a GPU flag: a CPU parses and ignores
          it, so there the two runs differ only by noise.
+seeds    For each of `--seed_counts` N, the same command with `--seeds N` (seeds S .. S + N -
+         1 from the first of `--seeds`, one vmapped program: the way to fill a GPU;
+         `--seeds_total_timesteps` env steps per seed), cold and warm as in tta: the PPO's
+         env steps/s over all N seeds (the sum of every seed's median `steps_per_s`), the
+         median over the seeds of the times to 5 mm and 1 mm, and whether every seed's
+         final state is bitwise its cold run's (`same_bits_as_cold`).
 limit    `mara_mjx.bench.limit.limit_study` (the limit study itself) for the train driver
          of the task at `--limit_num_envs` environments: XLA's FLOPs and bytes of one env
          step against the float32 matmul FLOP/s and memory bandwidth measured in the same
@@ -48,6 +54,7 @@ command.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 import shlex
 import statistics
@@ -78,7 +85,12 @@ class TTAConfig(BenchConfig):
 
     tasks: tuple[str, ...] = ("MARACollisionOrient",)
     """The registered env to train (one)."""
-    parts: tuple[Literal["tta", "xla_ops", "limit"], ...] = ("tta", "xla_ops", "limit")
+    parts: tuple[Literal["tta", "xla_ops", "seeds", "limit"], ...] = (
+        "tta",
+        "xla_ops",
+        "seeds",
+        "limit",
+    )
     """Parts to run (module docstring)."""
     seeds: tuple[int, ...] = (0, 1, 2)
     """Seeds of the tta part, each trained cold and warm; xla_ops uses the first."""
@@ -92,6 +104,10 @@ class TTAConfig(BenchConfig):
     it changes the time to accuracy."""
     xla_ops_total_timesteps: int = 10_000_000
     """--total_timesteps of the xla_ops runs (0: as the tta runs)."""
+    seed_counts: tuple[int, ...] = (16,)
+    """Seed counts N of the seeds part (each `--seeds N`, cold and warm)."""
+    seeds_total_timesteps: int = 10_000_000
+    """--total_timesteps of the seeds part's runs, per seed (0: as the tta runs)."""
     limit_num_envs: int = 2048
     """Environments of the limit part's env step (2048: the default preset's)."""
     timeout_s: int = 1200
@@ -105,9 +121,11 @@ class TTAConfig(BenchConfig):
         "train_args": "--num_envs 4 --num_steps 8 --total_timesteps 64 --num_minibatches 2 "
         "--update_epochs 2 --max_episode_steps 16 --updates_per_call 1",
         "xla_ops_total_timesteps": 0,
+        "seed_counts": (2,),
+        "seeds_total_timesteps": 0,
         "limit_num_envs": 4,
     }
-    POSITIVE: ClassVar[tuple[str, ...]] = ("limit_num_envs", "timeout_s")
+    POSITIVE: ClassVar[tuple[str, ...]] = ("limit_num_envs", "timeout_s", "seed_counts")
     SHARES_DEVICE: ClassVar[bool] = True
 
     def __post_init__(self):
@@ -117,20 +135,25 @@ class TTAConfig(BenchConfig):
         if len(self.tasks) != 1:
             raise ValueError(f"tta trains one task; got --tasks {' '.join(self.tasks)}")
         if not self.parts:
-            raise ValueError("parts: give at least one of tta, xla_ops, limit")
+            raise ValueError("parts: give at least one of tta, xla_ops, seeds, limit")
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
             raise ValueError(f"seeds must be distinct and at least one, got {self.seeds}")
         for seed in self.seeds:
             check_int("seeds", seed, minimum=0)
         check_int("xla_ops_total_timesteps", self.xla_ops_total_timesteps, minimum=0)
+        check_int("seeds_total_timesteps", self.seeds_total_timesteps, minimum=0)
         if self.preset and self.preset not in PRESETS:
             raise ValueError(f"unknown preset {self.preset!r}; choose one of {sorted(PRESETS)}")
         check_train_args(self.train_args, self.tasks[0], self.preset)
 
 
-def train_argv(config: TTAConfig, seed: int, out: Path, cache: str, total: int = 0) -> list[str]:
-    """The train command of the module docstring (`total` > 0: --total_timesteps last)."""
+def train_argv(
+    config: TTAConfig, seed: int, out: Path, cache: str, total: int = 0, seeds: int = 1
+) -> list[str]:
+    """The train command of the module docstring (`total` > 0: --total_timesteps last;
+    `seeds` > 1: --seeds)."""
     argv = [sys.executable, "-m", "mara_mjx.train", "--env", config.tasks[0], "--seed", str(seed)]
+    argv += ["--seeds", str(seeds)] if seeds > 1 else []
     argv += ["--preset", config.preset] if config.preset else []
     argv += [*QUIET, *shlex.split(config.train_args)]
     argv += ["--total_timesteps", str(total)] if total else []
@@ -146,6 +169,8 @@ def run_train(
     env = child_env(xla_ops)
     timing = launch(argv, env, work / f"{name}.log", config.timeout_s)
     prefix = f"XLA_FLAGS={shlex.quote(env['XLA_FLAGS'])} " if xla_ops is not None else ""
+    n = argv_args.get("seeds", 1)
+    offset = timing["launch_offset_s"]
     return {
         "kind": "run",
         "task": config.tasks[0],
@@ -153,7 +178,37 @@ def run_train(
         "command": prefix + "python " + shlex.join(argv[1:]),
         "xla_flags_given": env.get("XLA_FLAGS", ""),
         **timing,
-        **read_run(out, timing["launch_offset_s"]),
+        **(read_run(out, offset) if n == 1 else read_seeds(out, argv_args["seed"], n, offset)),
+    }
+
+
+def read_seeds(out: Path, first: int, n: int, offset: float | None) -> dict[str, Any]:
+    """A `--seeds n` run folder as one record: `read_run` of every seed's folder, env
+    steps/s summed (one program trains them all), the times to accuracy and the final
+    errors as medians over the seeds, the first call when the last seed's was done, the
+    hashes over every seed's (in seed order); `per_seed` keeps each seed's record (the
+    times: the median's seed that never reached a threshold counts as later than any)."""
+    per = [read_run(out / f"seed_{s}", offset) for s in range(first, first + n)]
+    rec: dict[str, Any] = {}
+    for mm in THRESHOLDS_MM:
+        for key in (f"to_{mm:g}mm_s", f"to_{mm:g}mm_env_steps"):
+            m = statistics.median([math.inf if r[key] is None else r[key] for r in per])
+            rec[key] = m if math.isfinite(m) else None
+        rec[f"reached_{mm:g}mm"] = sum(r[f"to_{mm:g}mm_s"] is not None for r in per)
+    rates = [r["env_steps_per_s"] for r in per]
+    for key in ("state_hash", "training_hash"):
+        hashes = [r[key] for r in per]
+        joined = None if None in hashes else "".join(hashes)
+        rec[key] = hashlib.sha256(joined.encode()).hexdigest()[:16] if joined else None
+    return {
+        **rec,
+        "num_seeds": n,
+        "env_steps": sum(r["env_steps"] for r in per),
+        "first_call_s": max(r["first_call_s"] for r in per),
+        "env_steps_per_s": None if None in rates else sum(rates),
+        "final_det_error_mm": statistics.median(r["final_det_error_mm"] for r in per),
+        "cli_command_time_s": max(r["cli_command_time_s"] for r in per),
+        "per_seed": per,
     }
 
 
@@ -173,6 +228,23 @@ def tta_part(config: TTAConfig, work: Path) -> list[dict[str, Any]]:
             _print(rec)
     for phase in ("cold", "warm"):
         records.append(median_record([r for r in records if r["cache"] == phase], phase))
+    return records
+
+
+def seeds_part(config: TTAConfig, work: Path) -> list[dict[str, Any]]:
+    records = []
+    for n in config.seed_counts:
+        cache = work / f"cache-seeds{n}"
+        cache.mkdir()
+        for phase in ("cold", "warm"):
+            args = {"seed": config.seeds[0], "cache": str(cache), "seeds": n}
+            args["total"] = config.seeds_total_timesteps
+            rec = run_train(config, work, f"seeds{n}-{phase}", args, None)
+            rec = {**rec, "part": "seeds", "cache": phase, "xla_ops": CLI_DEFAULT}
+            if phase == "warm":
+                rec["same_bits_as_cold"] = rec["state_hash"] == records[-1]["state_hash"]
+            records.append(rec)
+            _print(rec)
     return records
 
 
@@ -229,6 +301,8 @@ def tta_study(config: TTAConfig) -> list[dict[str, Any]]:
             records += tta_part(config, Path(folder))
         if "xla_ops" in config.parts:
             records += xla_ops_part(config, Path(folder))
+        if "seeds" in config.parts:
+            records += seeds_part(config, Path(folder))
         if "limit" in config.parts:
             warm = [r for r in records if r["kind"] == "median" and r["cache"] == "warm"]
             records.append(limit_part(config, warm[0]["env_steps_per_s"] if warm else None))
@@ -243,8 +317,9 @@ def tta_study(config: TTAConfig) -> list[dict[str, Any]]:
 
 
 def _print(r: dict[str, Any]) -> None:
+    seeds = f" x {r['num_seeds']} seeds" if r.get("num_seeds") else ""
     print(
-        f"{r['part']:7s} seed {r['seed']} {r['cache']:4s} {r['xla_ops']:17s}"
+        f"{r['part']:7s} seed {r['seed']}{seeds} {r['cache']:4s} {r['xla_ops']:17s}"
         f" 5 mm at {_secs(r['to_5mm_s'])}, 1 mm at {_secs(r['to_1mm_s'])},"
         f" command {r['command_s']:.1f} s, {_mega(r['env_steps_per_s'])} env steps/s,"
         f" state {r['state_hash']}, training {r.get('training_hash')}",
@@ -298,6 +373,18 @@ def _notes(records: list[dict[str, Any]]) -> list[str]:
             f"PPO env steps/s by XLA's GPU ops: {text} (the CLI default: warm median of the "
             "tta runs; `--xla_gpu_deterministic_ops` only acts on GPUs).",
         ]
+    groups = [r for r in records if r["part"] == "seeds" and r["cache"] == "warm"]
+    if groups:
+        text = "; ".join(
+            f"{r['num_seeds']} seeds {_mega(r['env_steps_per_s'])} env steps/s, bitwise as cold: "
+            f"{'yes' if r['same_bits_as_cold'] else 'NO'}"
+            for r in groups
+        )
+        lines += [
+            "",
+            f"Several seeds in one program (`--seeds N`, warm; env steps/s summed over the "
+            f"seeds): {text}.",
+        ]
     for r in (r for r in records if r["kind"] == "limit"):
         ppo = r["ppo_fraction_of_bound"]
         lines += [
@@ -345,6 +432,8 @@ def plot_tta(records: list[dict[str, Any]], title: str, path: Any) -> None:
     rates = [(r["xla_ops"], r["env_steps_per_s"]) for r in records if r["part"] == "xla_ops"]
     warm = [r for r in records if r["kind"] == "median" and r["cache"] == "warm"]
     rates += [(CLI_DEFAULT, r["env_steps_per_s"]) for r in warm]
+    seeds = [r for r in records if r["part"] == "seeds" and r["cache"] == "warm"]
+    rates += [(f"{r['num_seeds']} seeds, warm", r["env_steps_per_s"]) for r in seeds]
     rates = [(k, v) for k, v in rates if v]
     for i, (k, v) in enumerate(rates):
         right.bar(i, v, color=f"C{i + 2}", label=k)
@@ -353,11 +442,18 @@ def plot_tta(records: list[dict[str, Any]], title: str, path: Any) -> None:
     finish_figure(fig, right, path, "PPO speed", "XLA GPU ops", "env steps / s")
 
 
+def _seed_cell(r: dict[str, Any]) -> str:
+    if "seed" not in r:  # a median: its seeds
+        return ",".join(map(str, r["seeds"]))
+    n = r.get("num_seeds", 1)
+    return str(r["seed"]) if n == 1 else f"{r['seed']}-{r['seed'] + n - 1}"
+
+
 TTA_TABLE: dict[str, Any] = {
     "title": "tta study: time to accuracy from command start (the train CLI as users run it)",
     "columns": [
         ("part", lambda r: r["part"] if r["kind"] == "run" else "median"),
-        ("seed", lambda r: str(r["seed"]) if "seed" in r else ",".join(map(str, r["seeds"]))),
+        ("seed", _seed_cell),
         ("cache", lambda r: r["cache"]),
         ("XLA GPU ops", lambda r: r["xla_ops"]),
         ("5 mm at (s)", lambda r: _cell(r["to_5mm_s"])),

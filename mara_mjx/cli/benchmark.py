@@ -53,9 +53,12 @@ Studies:
         compilation-cache folder) and warm (the same folder again): seconds from
         launching it to a deterministic mean per-axis error below 5 mm and 1 mm, the
         whole command, env steps/s, a hash of the final state; medians over seeds. Then
-        the PPO's env steps/s with XLA's deterministic GPU ops and without, and the env
-        step's FLOPs and bytes against the device's measured ceilings (the `limit`
-        study's code, one size). (`mara_mjx.bench.tta`)
+        the PPO's env steps/s with XLA's deterministic GPU ops and without; the same
+        command with `--seeds N` for each of `--seed_counts` (default 16: many seeds in
+        one program, the way to fill a GPU), cold and warm, its env steps/s summed over
+        the seeds and whether every seed's bits repeat; and the env step's FLOPs and
+        bytes against the device's measured ceilings (the `limit` study's code, one
+        size). (`mara_mjx.bench.tta`)
 
 scaling  env steps/s of the batched step and of PPO against the number of devices
         (1, 2, 4, ... all; weak scaling with a fixed per-device batch, and strong
