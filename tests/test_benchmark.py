@@ -267,7 +267,10 @@ def test_tta_study_quick(runs):
     rates = [p["env_steps_per_s"] for p in group_warm["per_seed"]]
     assert group_warm["env_steps_per_s"] == sum(rates) and min(rates) > 0
     assert group_warm["same_bits_as_cold"] is True
-    assert group_cold["state_hash"] == group_warm["state_hash"] != warm["state_hash"]
+    assert group_cold["state_hash"] == group_warm["state_hash"]
+    assert cold["num_seeds"] == 1 and "--seeds" not in cold["command"]
+    text = (runs[0] / "tta.md").read_text()
+    assert "Several seeds in one program" in text and "2 seeds" in text
     assert "--xla_gpu_deterministic_ops=true" in det["xla_flags_given"]
     assert "--xla_gpu_deterministic_ops=false" in nondet["xla_flags_given"]
     assert "xla_gpu_deterministic_ops" not in cold["xla_flags_given"]  # the CLI chooses

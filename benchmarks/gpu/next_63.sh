@@ -30,8 +30,8 @@ noise() {
 bash benchmarks/gpu/distill_51.sh ${OFFSET:-1600} $t
 [ "${NOISE:-1}" = last ] && noise
 if [ -n "$SEEDS_TTA" ]; then  # issue 35: PPO env steps/s with --seeds N, bits cold vs warm
-  python -m mara_mjx.benchmark tta --parts seeds --seeds 1000 --seed_counts $SEEDS_TTA \
-    ${QUICK:+--quick} --out /tmp/res/tta_seeds > /tmp/res/tta_seeds.log 2>&1
+  python -m mara_mjx.benchmark tta --tasks MARACollisionOrient --parts seeds --seeds 1000 \
+    --seed_counts $SEEDS_TTA ${QUICK:+--quick} --out /tmp/res/tta_seeds > /tmp/res/tta_seeds.log 2>&1
   echo "tta_seeds DONE $?" >> /tmp/res/studies.log
   pack tta_seeds
 fi

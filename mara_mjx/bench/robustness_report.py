@@ -159,7 +159,7 @@ def plot(records: list[dict[str, Any]], title: str, path: Path) -> None:
     ax.axhline(1.0, color="grey", lw=0.8, ls="--")
     ax.set_xticks(range(len(groups)))
     # a recipe with a long flag list (a teacher's path) wrapped, not cut off at the edge
-    wrap = max(24, int(40 * max(6.0, 1.2 * len(groups) + 2) / 6.0 / len(groups)))
+    wrap = max(24, int(40 * max(6.0, 1.2 * len(groups) + 2) / 6.0 / max(1, len(groups))))
     labels = [t + "\n" + textwrap.fill(r, wrap, break_on_hyphens=False) for t, r in groups]
     ax.set_xticklabels(labels, fontsize=7)
     ax.set_yscale("log")

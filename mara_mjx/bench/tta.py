@@ -72,11 +72,10 @@ from mara_mjx.bench.train_command import (
     launch,
     read_run,
 )
+from mara_mjx.bench.tta_report import CLI_DEFAULT, TTA_TABLE, mega, secs
 from mara_mjx.config import check_int
-from mara_mjx.viz.plots import finish_figure
 
 XLA_OPS = {"deterministic": "true", "non-deterministic": "false"}
-CLI_DEFAULT = "cli default"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -142,6 +141,12 @@ class TTAConfig(BenchConfig):
             check_int("seeds", seed, minimum=0)
         check_int("xla_ops_total_timesteps", self.xla_ops_total_timesteps, minimum=0)
         check_int("seeds_total_timesteps", self.seeds_total_timesteps, minimum=0)
+        if len(set(self.seed_counts)) != len(self.seed_counts) or (
+            "seeds" in self.parts and not self.seed_counts
+        ):
+            raise ValueError(
+                f"seed_counts must be distinct and at least one, got {self.seed_counts}"
+            )
         if self.preset and self.preset not in PRESETS:
             raise ValueError(f"unknown preset {self.preset!r}; choose one of {sorted(PRESETS)}")
         check_train_args(self.train_args, self.tasks[0], self.preset)
@@ -178,6 +183,7 @@ def run_train(
         "command": prefix + "python " + shlex.join(argv[1:]),
         "xla_flags_given": env.get("XLA_FLAGS", ""),
         **timing,
+        "num_seeds": n,
         **(read_run(out, offset) if n == 1 else read_seeds(out, argv_args["seed"], n, offset)),
     }
 
@@ -193,7 +199,7 @@ def read_seeds(out: Path, first: int, n: int, offset: float | None) -> dict[str,
     for mm in THRESHOLDS_MM:
         for key in (f"to_{mm:g}mm_s", f"to_{mm:g}mm_env_steps"):
             m = statistics.median([math.inf if r[key] is None else r[key] for r in per])
-            rec[key] = m if math.isfinite(m) else None
+            rec[key] = (round(m) if key.endswith("env_steps") else m) if math.isfinite(m) else None
         rec[f"reached_{mm:g}mm"] = sum(r[f"to_{mm:g}mm_s"] is not None for r in per)
     rates = [r["env_steps_per_s"] for r in per]
     for key in ("state_hash", "training_hash"):
@@ -320,156 +326,11 @@ def _print(r: dict[str, Any]) -> None:
     seeds = f" x {r['num_seeds']} seeds" if r.get("num_seeds") else ""
     print(
         f"{r['part']:7s} seed {r['seed']}{seeds} {r['cache']:4s} {r['xla_ops']:17s}"
-        f" 5 mm at {_secs(r['to_5mm_s'])}, 1 mm at {_secs(r['to_1mm_s'])},"
-        f" command {r['command_s']:.1f} s, {_mega(r['env_steps_per_s'])} env steps/s,"
+        f" 5 mm at {secs(r['to_5mm_s'])}, 1 mm at {secs(r['to_1mm_s'])},"
+        f" command {r['command_s']:.1f} s, {mega(r['env_steps_per_s'])} env steps/s,"
         f" state {r['state_hash']}, training {r.get('training_hash')}",
         flush=True,
     )
-
-
-# ------------------------------------------------------------------ output spec
-def _cell(x: float | None, digits: int = 1) -> str:
-    return "" if x is None else f"{x:.{digits}f}"
-
-
-def _mega(x: float | None) -> str:
-    return "" if x is None else f"{x / 1e6:.3g} M"
-
-
-def _secs(x: float | None) -> str:
-    return "not reached" if x is None else f"{x:.1f} s"
-
-
-def _int(x: int | None) -> str:
-    return "" if x is None else f"{x:,}"
-
-
-def _notes(records: list[dict[str, Any]]) -> list[str]:
-    lines = [
-        "Times in seconds from command start (this process launching `python -m "
-        "mara_mjx.train`; the CLI's own clock starts with its process, the offset is in "
-        "the JSON), compile and start-up included; granularity one jitted call. env "
-        "steps/s: median of the progress rows after the first (compiling) call. Full "
-        "commands in the JSON (`command`)."
-    ]
-    medians = {r["cache"]: r for r in records if r["kind"] == "median"}
-    if medians:
-        parts = [
-            f"{phase} 5 mm at {_secs(m['to_5mm_s'])}, 1 mm at {_secs(m['to_1mm_s'])}, "
-            f"whole command {_secs(m['command_s'])}"
-            for phase, m in medians.items()
-        ]
-        seeds = ", ".join(str(s) for s in medians["cold"]["seeds"])
-        lines += ["", f"Median of seeds {seeds}: " + "; ".join(parts) + "."]
-        same = [r["same_bits_as_cold"] for r in records if "same_bits_as_cold" in r]
-        lines += [f"Warm runs bit-identical to their cold run: {sum(same)} of {len(same)}."]
-    rates = {r["xla_ops"]: r["env_steps_per_s"] for r in records if r["part"] == "xla_ops"}
-    if "warm" in medians:
-        rates[CLI_DEFAULT] = medians["warm"]["env_steps_per_s"]
-    if rates:
-        text = ", ".join(f"{k} {_mega(v)}" for k, v in rates.items())
-        lines += [
-            "",
-            f"PPO env steps/s by XLA's GPU ops: {text} (the CLI default: warm median of the "
-            "tta runs; `--xla_gpu_deterministic_ops` only acts on GPUs).",
-        ]
-    groups = [r for r in records if r["part"] == "seeds" and r["cache"] == "warm"]
-    if groups:
-        text = "; ".join(
-            f"{r['num_seeds']} seeds {_mega(r['env_steps_per_s'])} env steps/s, bitwise as cold: "
-            f"{'yes' if r['same_bits_as_cold'] else 'NO'}"
-            for r in groups
-        )
-        lines += [
-            "",
-            f"Several seeds in one program (`--seeds N`, warm; env steps/s summed over the "
-            f"seeds): {text}.",
-        ]
-    for r in (r for r in records if r["kind"] == "limit"):
-        ppo = r["ppo_fraction_of_bound"]
-        lines += [
-            "",
-            f"Roofline (`limit` study, {r['task']} train driver, {r['num_envs']:,} envs): one "
-            f"env step {r['flops_per_env_step']:,.0f} FLOP and {r['bytes_per_env_step']:,.0f} "
-            "bytes (XLA's cost analysis); ceilings measured here: float32 matmul "
-            f"{r['f32_matmul_flops_per_s'] / 1e12:.2f} TFLOP/s, memory "
-            f"{r['bytes_per_s'] / 1e9:.1f} GB/s; bound {_mega(r['bound_env_steps_per_s'])} "
-            f"env steps/s ({r['limited_by']}); the env step alone "
-            f"{_mega(r['env_steps_per_s'])} ({100 * r['fraction_of_bound']:.2f}% of it), "
-            f"the PPO {_mega(r['ppo_env_steps_per_s'])}"
-            + (f" ({100 * ppo:.2f}% of it)." if ppo else "."),
-        ]
-    return lines
-
-
-def plot_tta(records: list[dict[str, Any]], title: str, path: Any) -> None:
-    """Left: time to 5 mm, 1 mm and the whole command, cold and warm (bars: median over
-    seeds; dots: seeds). Right: PPO env steps/s by XLA's GPU-op choice."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4.5), width_ratios=(3, 2))
-    keys = (("to_5mm_s", "5 mm"), ("to_1mm_s", "1 mm"), ("command_s", "command"))
-    for j, phase in enumerate(("cold", "warm")):
-        m = next((r for r in records if r["kind"] == "median" and r["cache"] == phase), None)
-        runs = [r for r in records if r["kind"] == "run" and r["part"] == "tta"]
-        runs = [r for r in runs if r["cache"] == phase]
-        xs = [i + 0.38 * (j - 0.5) for i in range(len(keys))]
-        heights = [(m or {}).get(k) or 0.0 for k, _ in keys]
-        left.bar(xs, heights, width=0.36, color=f"C{j}", alpha=0.7, label=f"{phase} (median)")
-        for x, h, (k, _) in zip(xs, heights, keys, strict=True):
-            ys = [r[k] for r in runs if r[k] is not None]
-            left.plot([x] * len(ys), ys, "k.", markersize=5)
-            if m is not None and not h:
-                left.text(x, 0, "not\nreached", ha="center", va="bottom", fontsize=7)
-    left.set_xticks(range(len(keys)), [label for _, label in keys])
-    left.set_ylabel("seconds from command start")
-    left.set_title("time to accuracy (dots: seeds)")
-    left.grid(True, axis="y", alpha=0.3)
-    left.legend(fontsize=8)
-    rates = [(r["xla_ops"], r["env_steps_per_s"]) for r in records if r["part"] == "xla_ops"]
-    warm = [r for r in records if r["kind"] == "median" and r["cache"] == "warm"]
-    rates += [(CLI_DEFAULT, r["env_steps_per_s"]) for r in warm]
-    seeds = [r for r in records if r["part"] == "seeds" and r["cache"] == "warm"]
-    rates += [(f"{r['num_seeds']} seeds, warm", r["env_steps_per_s"]) for r in seeds]
-    rates = [(k, v) for k, v in rates if v]
-    for i, (k, v) in enumerate(rates):
-        right.bar(i, v, color=f"C{i + 2}", label=k)
-    right.set_xticks(range(len(rates)), [k.replace(" ", "\n") for k, _ in rates], fontsize=7)
-    fig.suptitle(title)
-    finish_figure(fig, right, path, "PPO speed", "XLA GPU ops", "env steps / s")
-
-
-def _seed_cell(r: dict[str, Any]) -> str:
-    if "seed" not in r:  # a median: its seeds
-        return ",".join(map(str, r["seeds"]))
-    n = r.get("num_seeds", 1)
-    return str(r["seed"]) if n == 1 else f"{r['seed']}-{r['seed'] + n - 1}"
-
-
-TTA_TABLE: dict[str, Any] = {
-    "title": "tta study: time to accuracy from command start (the train CLI as users run it)",
-    "columns": [
-        ("part", lambda r: r["part"] if r["kind"] == "run" else "median"),
-        ("seed", _seed_cell),
-        ("cache", lambda r: r["cache"]),
-        ("XLA GPU ops", lambda r: r["xla_ops"]),
-        ("5 mm at (s)", lambda r: _cell(r["to_5mm_s"])),
-        ("1 mm at (s)", lambda r: _cell(r["to_1mm_s"])),
-        ("env steps to 1 mm", lambda r: _int(r["to_1mm_env_steps"])),
-        ("first call done (s)", lambda r: _cell(r["first_call_s"])),
-        ("command (s)", lambda r: _cell(r["command_s"])),
-        ("env steps/s", lambda r: _mega(r["env_steps_per_s"])),
-        ("final det error (mm)", lambda r: _cell(r.get("final_det_error_mm"), 3)),
-        ("state hash", lambda r: r.get("state_hash") or ""),
-        ("training hash", lambda r: r.get("training_hash") or ""),
-    ],
-    "rows": lambda records: [r for r in records if r["kind"] in ("run", "median")],
-    "notes": _notes,
-    "plot": plot_tta,
-}
 
 
 STUDY = Study(
