@@ -81,7 +81,7 @@ def child(args: argparse.Namespace) -> None:
 
     configure_jax(args.cache)
     import mara_mjx
-    from mara_mjx.ppo.config import PRESETS
+    from mara_mjx.ppo.presets import PRESETS
     from mara_mjx.ppo.train import make_train
 
     sizes = {k: v for k, v in (("num_envs", args.num_envs), ("num_steps", args.num_steps)) if v}

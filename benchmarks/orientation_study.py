@@ -35,10 +35,11 @@ import jax.numpy as jnp
 import numpy as np
 
 import mara_mjx
-from mara_mjx.ppo.config import PRESETS, EvalConfig, default_preset
+from mara_mjx.ppo.config import EvalConfig
 from mara_mjx.ppo.evaluation import make_evaluate
 from mara_mjx.ppo.members import make_seed_trainer, take_seed
 from mara_mjx.ppo.policy import make_policy
+from mara_mjx.ppo.presets import PRESETS, default_preset
 from mara_mjx.ppo.train import make_train
 
 VARIANTS = {

@@ -102,7 +102,7 @@ def main(specs: list[str]) -> None:
         "Accuracy: the paper's evaluation per seed (10 episodes, reset noise 0.02 rad, stop",
         "when every axis is within 5 mm), mean over episodes; 'mean' and 'worst' are over",
         "seeds. 'hold': the same episodes run to the horizon (1024 steps), error at the last",
-        "step. Preset: `ppo.config.default_preset`, what `python -m mara_mjx.train --env T`",
+        "step. Preset: `ppo.presets.default_preset`, what `python -m mara_mjx.train --env T`",
         "trains with.",
         "",
         "| task | preset | seeds | reached | position mean (mm) | position worst seed (mm)"

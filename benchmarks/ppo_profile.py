@@ -37,7 +37,7 @@ import mara_mjx  # noqa: E402
 from mara_mjx.bench.runner import device_info, versions  # noqa: E402
 from mara_mjx.envs.batched import BatchedEnv  # noqa: E402
 from mara_mjx.ppo import PRESETS, make_train  # noqa: E402
-from mara_mjx.ppo.config import default_preset  # noqa: E402
+from mara_mjx.ppo.presets import default_preset  # noqa: E402
 
 
 def per(summary: dict, n: int) -> dict:

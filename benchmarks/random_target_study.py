@@ -11,7 +11,7 @@ horizon, per-axis mean / median / p95 / worst).
         --seeds 0 1 --variants default 'train_reward_until=1.0' \
         --total-timesteps 150000000 --out study.json
 
-Variants: 'default' (the train CLI's preset for the task, `ppo.config.default_preset`) or
+Variants: 'default' (the train CLI's preset for the task, `ppo.presets.default_preset`) or
 'key=value;key=value' overrides of it (JSON values, as orientation_study.py); `--env`
 'key=value;...' EnvConfig overrides (e.g. 'target_table_size=16384') apply to every
 variant.
@@ -32,10 +32,11 @@ import numpy as np
 import mara_mjx
 from mara_mjx.envs import targets
 from mara_mjx.ppo import target_eval
-from mara_mjx.ppo.config import PRESETS, TrainConfig, default_preset
+from mara_mjx.ppo.config import TrainConfig
 from mara_mjx.ppo.evaluation import evaluate, make_evaluate
 from mara_mjx.ppo.members import make_seed_trainer, take_seed
 from mara_mjx.ppo.policy import make_policy
+from mara_mjx.ppo.presets import PRESETS, default_preset
 from mara_mjx.ppo.train import make_train
 
 sys.path.insert(0, os.path.dirname(__file__))

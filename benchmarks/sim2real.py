@@ -46,8 +46,8 @@ import numpy as np
 import mara_mjx
 from mara_mjx.cli.common import configure_jax
 from mara_mjx.envs.randomize import RandomizeConfig
-from mara_mjx.ppo.config import PRESETS
 from mara_mjx.ppo.policy import Policy, make_policy
+from mara_mjx.ppo.presets import PRESETS
 from mara_mjx.ppo.train import make_train
 
 RECIPES = {

@@ -14,9 +14,10 @@ from test_export_plots import make_run
 
 from mara_mjx.cli.export import ExportError, export_policy
 from mara_mjx.envs.clearance import clearance, keep_clear
-from mara_mjx.ppo.config import PRESETS, EvalConfig, TrainConfig
+from mara_mjx.ppo.config import EvalConfig, TrainConfig
 from mara_mjx.ppo.networks import make_network
 from mara_mjx.ppo.parametrisation import PolicyConfig
+from mara_mjx.ppo.presets import PRESETS
 
 # observed joints, then the commanded ones, of seed 1010's two collisions 150 mm out
 Q = np.array([[1.909, -0.2626, 0.6585, -0.143, 2.0652, 0.0151],

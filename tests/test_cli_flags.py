@@ -12,7 +12,7 @@ import pytest
 
 import mara_mjx
 from mara_mjx.cli import export, train, train_plan
-from mara_mjx.ppo.config import PRESETS, default_preset
+from mara_mjx.ppo.presets import PRESETS, default_preset
 
 
 def test_the_old_spelling_still_parses_with_a_note(capsys):

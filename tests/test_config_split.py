@@ -21,7 +21,6 @@ import pytest
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo import config as config_module
 from mara_mjx.ppo.config import (
-    PRESETS,
     CurriculumConfig,
     PolicyConfig,
     PPOConfig,
@@ -29,6 +28,7 @@ from mara_mjx.ppo.config import (
     upgrade_meta,
 )
 from mara_mjx.ppo.policy import load_policy
+from mara_mjx.ppo.presets import PRESETS
 from mara_mjx.runtime import runs
 
 DATA = Path(__file__).parent / "data"

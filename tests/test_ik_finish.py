@@ -19,8 +19,9 @@ import pytest
 
 import mara_mjx
 from mara_mjx.envs.task_space import FINISH_HOLD, finish_step, nominal_chain, pose_step
-from mara_mjx.ppo.config import PRESETS, TrainConfig, default_preset, for_env
+from mara_mjx.ppo.config import TrainConfig, for_env
 from mara_mjx.ppo.networks import forward, make_network
+from mara_mjx.ppo.presets import PRESETS, default_preset
 
 POSTURE = np.array([0.4, -0.5, 0.9, 0.1, 1.2, 0.0])
 """A well-conditioned posture of the arm (rad), as in tests/test_ik_orient_first.py."""
@@ -123,7 +124,7 @@ def test_ik_finish_is_deployed_only_and_replaces_the_step_near_the_target(mara):
 
 def test_ik_finish_is_validated_and_refused_on_an_orientation_task(mara):
     """Bad values, a missing relative_actions and an Orient task are clear errors that
-    name the way out; the train CLI trains MARA with it (ppo.config.default_preset)."""
+    name the way out; the train CLI trains MARA with it (ppo.presets.default_preset)."""
     with pytest.raises(ValueError, match="ik_finish"):
         TrainConfig.of(ik_finish=-0.1, relative_actions=True)
     with pytest.raises(ValueError, match="relative_actions=true"):

@@ -39,9 +39,10 @@ from mara_mjx.envs.task_space import (
     pose_step_wrapping,
     rotation_vector,
 )
-from mara_mjx.ppo.config import PRESETS, TrainConfig, for_env
+from mara_mjx.ppo.config import TrainConfig, for_env
 from mara_mjx.ppo.networks import forward, ik_prior_step, make_network
 from mara_mjx.ppo.policy import make_policy
+from mara_mjx.ppo.presets import PRESETS
 
 POSTURE = (0.4, -0.5, 0.9, 0.1, 1.2, 0.0)
 """A well-conditioned posture of the arm (rad), as in tests/test_ppo.py's wrap tests."""

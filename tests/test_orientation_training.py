@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 import mara_mjx
-from mara_mjx.ppo.config import PRESETS, TrainConfig, for_env
+from mara_mjx.ppo.config import TrainConfig, for_env
 from mara_mjx.ppo.curriculum import reward_curriculum
 from mara_mjx.ppo.networks import RunningStats, canonical_quat, forward, make_network
+from mara_mjx.ppo.presets import PRESETS
 from mara_mjx.ppo.train import make_train
 
 

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 import mara_mjx
-from mara_mjx.ppo.config import PRESETS
 from mara_mjx.ppo.divergence import check_finite
 from mara_mjx.ppo.networks import make_network
 from mara_mjx.ppo.policy import make_policy
+from mara_mjx.ppo.presets import PRESETS
 from mara_mjx.ppo.teacher import (
     imitation_loss,
     lookahead_action,

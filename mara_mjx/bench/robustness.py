@@ -206,7 +206,7 @@ class RobustnessConfig(BenchConfig):
 def split_recipe(recipe: str) -> tuple[str, str]:
     """(preset, flags) of a recipe string: preset "" for the CLI's choice. ValueError for
     an unknown preset."""
-    from mara_mjx.ppo.config import PRESETS
+    from mara_mjx.ppo.presets import PRESETS
 
     words = shlex.split(recipe)
     if not words:
@@ -247,7 +247,7 @@ class Job(NamedTuple):
 
 
 def make_jobs(config: RobustnessConfig, work: Path) -> list[Job]:
-    from mara_mjx.ppo.config import default_preset
+    from mara_mjx.ppo.presets import default_preset
 
     jobs = []
     for task in config.tasks:

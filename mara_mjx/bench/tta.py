@@ -129,7 +129,7 @@ class TTAConfig(BenchConfig):
 
     def __post_init__(self):
         super().__post_init__()
-        from mara_mjx.ppo.config import PRESETS
+        from mara_mjx.ppo.presets import PRESETS
 
         if len(self.tasks) != 1:
             raise ValueError(f"tta trains one task; got --tasks {' '.join(self.tasks)}")

@@ -33,15 +33,14 @@ from mara_mjx.envs.randomize import RandomizeConfig
 from mara_mjx.envs.rewards import RewardParams
 from mara_mjx.ppo import checkpoint as ckpt
 from mara_mjx.ppo.config import (
-    PRESETS,
     CurriculumConfig,
     EvalConfig,
     PolicyConfig,
     PPOConfig,
     RunConfig,
     TrainConfig,
-    default_preset,
 )
+from mara_mjx.ppo.presets import PRESETS, default_preset
 from mara_mjx.runtime import distributed, runs
 
 SECTIONS = (
@@ -130,7 +129,7 @@ def build_parser(argv: list[str] | None = None, full: bool = False) -> argparse.
     parser.add_argument(
         "--preset",
         choices=sorted(PRESETS),
-        help="PPO preset (default: the task's own, as `ppo.config.default_preset` picks it); "
+        help="PPO preset (default: the task's own, as `ppo.presets.default_preset` picks it); "
         "flags override its fields",
     )
     parser.add_argument(

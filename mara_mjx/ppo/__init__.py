@@ -21,7 +21,6 @@ from mara_mjx.ppo.checkpoint import (
     save_checkpoint,
 )
 from mara_mjx.ppo.config import (
-    PRESETS,
     CurriculumConfig,
     EvalConfig,
     PolicyConfig,
@@ -42,6 +41,7 @@ from mara_mjx.ppo.networks import (
 )
 from mara_mjx.ppo.optim import make_lr_schedule
 from mara_mjx.ppo.policy import Policy, load_policy, make_policy
+from mara_mjx.ppo.presets import PRESETS
 from mara_mjx.ppo.train import RunnerState, Trainer, make_train
 
 __all__ = [

@@ -49,7 +49,8 @@ from jax2onnx import to_onnx  # noqa: E402
 import mara_mjx  # noqa: E402
 import mara_mjx.envs.task_space as ts  # noqa: E402
 from mara_mjx.envs.geometry import quat_conj, quat_mul  # noqa: E402
-from mara_mjx.ppo.config import PRESETS, default_preset, for_env  # noqa: E402
+from mara_mjx.ppo.config import for_env  # noqa: E402
+from mara_mjx.ppo.presets import PRESETS, default_preset  # noqa: E402
 from mara_mjx.ppo.networks import RunningStats, make_network  # noqa: E402
 from mara_mjx.ppo.policy import Policy  # noqa: E402
 
