@@ -13,6 +13,8 @@
 #   TASK=MARAOrient setsid nohup bash benchmarks/gpu/next_63.sh > /tmp/res_driver.log 2>&1 < /dev/null & disown
 # then `SNAP=/tmp/work/dt_$TASK bash benchmarks/gpu/poll.sh 540` in the next calls, back to
 # back, until DRIVER_DONE (SNAP: the students' newest checkpoints come back on every call).
+# GUARD=1: after the students, the same students judged again with a 5-mm collision guard
+# deployed (forward kinematics and contact distances, no IK: `--collision_guard_mm 5`).
 # SEEDS_TTA="16" (or "1 16 32"): last, issue 35's `benchmark tta --parts seeds` on
 # MARACollisionOrient's CLI default (1e7 env steps per seed, cold and warm; ~2 min per count).
 # QUICK=1: the studies' tiny CPU settings, for a check before a GPU call.
@@ -28,6 +30,13 @@ noise() {
 }
 [ "${NOISE:-1}" = 1 ] && noise
 bash benchmarks/gpu/distill_51.sh ${OFFSET:-1600} $t
+if [ -n "$GUARD" ]; then  # the same students judged again with a 5-mm collision guard
+  read -ra st <<< "$STUDENT"
+  teacher=$(ls -dt /tmp/work/dt_$t/runs/$t-cli-*/ | head -1)
+  robust dt_${t}_${st[0]}_guard /tmp/work/dt_$t $t \
+    "distill --teacher ${teacher%/}${st[1]:+ ${st[*]:1}}" --seed_offset ${OFFSET:-1600} \
+    --collision_guard_mm 5
+fi
 [ "${NOISE:-1}" = last ] && noise
 if [ -n "$SEEDS_TTA" ]; then  # issue 35: PPO env steps/s with --seeds N, bits cold vs warm
   python -m mara_mjx.benchmark tta --tasks MARACollisionOrient --parts seeds --seeds 1000 \
