@@ -127,7 +127,10 @@ PLANNED = (
 # Fields added after the split: (the default every pre-split config loads with, the
 # presets that set another value and that value).
 ADDED_SINCE_SPLIT = {
-    "collision_guard_mm": (0.0, {"orient_first": 5.0, "random_target_plan_guard": 5.0}),
+    "collision_guard_mm": (
+        0.0,
+        {"orient_first": 5.0, "orient_first_noisy_starts": 5.0, "random_target_plan_guard": 5.0},
+    ),
     "plan_steps": (0, dict.fromkeys(PLANNED, 16)),
     "plan_starts": (0, dict.fromkeys(PLANNED, 16)),
     "commit_rad": (0.0, {}),
@@ -141,6 +144,7 @@ ADDED_SINCE_SPLIT = {
     "imitation_spread": (0.0, {}),
     "imitation_lookahead": (1, {}),
     "imitation_lookahead_mm": (20.0, {}),
+    "train_reset_noise_final": (-1.0, {"orient_first_noisy_starts": 0.02}),
 }
 
 
@@ -150,6 +154,7 @@ PRESETS_SINCE_SPLIT = {
     "random_target_plan": ("random_target_orient", {"total_timesteps": 50_000_000}),
     "random_target_plan_guard": ("random_target_orient", {"total_timesteps": 50_000_000}),
     "distill": ("random_target", {"hidden_sizes": [256, 256]}),  # its teacher: a flag
+    "orient_first_noisy_starts": ("orient_first", {"train_reset_noise": 0.02}),
 }
 
 

@@ -137,6 +137,12 @@ def test_the_runner_runs_the_graph(exported):
         obs.append(runner.observe(q[i], target_pos[i], target_quat[i]))
         got.append(runner.step(q[i], target_pos[i], target_quat[i]))
     np.testing.assert_allclose(got, step(np.array(obs))[1], atol=1e-4, rtol=0)
+    # a batch of arms through the one-arm file (evaluate's loop runs 10 episodes at once):
+    # the rows in turn, as the file's own one-row calls give them
+    rows = np.array(obs)
+    np.testing.assert_array_equal(
+        runner.act(rows), np.concatenate([runner.act(r[None]) for r in rows])
+    )
 
 
 def test_a_corrupted_graph_fails_the_self_check(exported):

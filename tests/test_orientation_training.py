@@ -102,6 +102,37 @@ def test_train_reset_noise_starts_episodes_off_the_reset_pose():
     assert for_env(config, NoNoise()).curriculum.train_reset_noise == 0.0
 
 
+def test_a_held_train_reset_noise_is_the_env_flag_s_noise_at_every_update():
+    """train_reset_noise_final = train_reset_noise: every rollout's episodes start with
+    that noise, bit for bit the value the env's own `--reset_noise 0.02` gives them
+    (which evaluation overrides); left at -1 it shrinks to the env's own (0)."""
+    from mara_mjx.envs.batched import BatchedEnv
+    from mara_mjx.ppo.curriculum import make_schedule
+
+    env = mara_mjx.make("MARA")
+    flag = mara_mjx.make("MARA", reset_noise=0.02).default_params.reset_noise
+    sizes = dict(num_envs=8, num_steps=4, num_minibatches=1, total_timesteps=64)
+    config = PRESETS["cpu"].replace(**sizes, train_reset_noise=0.02)
+    state = make_train(env, config).init(jax.random.key(0)).env_state
+    benv = BatchedEnv(env, 8)
+    for final, last in ((0.02, flag), (-1.0, 0.0)):
+        curriculum = config.replace(train_reset_noise_final=final).curriculum
+        schedule = make_schedule(curriculum, env, benv, num_updates=10)
+        noise = [
+            np.asarray(schedule.rollout_state(state, jnp.int32(u)).env_state.params.reset_noise)
+            for u in (0, 3, 10)
+        ]
+        np.testing.assert_array_equal(noise[0], flag)  # 0.02 at the start either way
+        np.testing.assert_array_equal(noise[-1], last)
+        if final > 0:
+            np.testing.assert_array_equal(noise[1], flag)
+        else:
+            assert 0.0 < noise[1].max() < flag
+        np.testing.assert_array_equal(schedule.initial_params().reset_noise, flag)
+    with pytest.raises(ValueError, match="train_reset_noise_final"):
+        TrainConfig.of(train_reset_noise=0.02, train_reset_noise_final=0.7)
+
+
 def test_stagger_episodes_spreads_the_first_episodes_over_the_horizon():
     """stagger_episodes: the envs' step counters start spread over [0, horizon), so
     their episodes end at different updates; off, all start at 0 (the same key stream)."""

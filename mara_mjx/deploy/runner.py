@@ -384,7 +384,21 @@ def _load_onnx(path: Path, threads: int) -> tuple[Any, dict[str, Any]]:
     if meta.get("ik_finish"):
         raise RunnerError(f"{str(path)!r} claims an IK finish, which .onnx cannot run")
 
+    fixed = session.get_inputs()[0].shape[0]  # `export --batch B`: B; any batch: a name
+    fixed = fixed if isinstance(fixed, int) else None
+
+    def run(x: np.ndarray) -> np.ndarray:
+        return session.run(["action"], {"obs": x})[0].astype(np.float64)
+
     def policy(obs: np.ndarray) -> np.ndarray:
-        return session.run(["action"], {"obs": obs.astype(np.float32)})[0].astype(np.float64)
+        x = obs.astype(np.float32)
+        if fixed is None or len(x) == fixed:
+            return run(x)
+        if fixed == 1:  # a file for one arm per call (`--batch 1`): the rows in turn
+            return np.concatenate([run(row[None]) for row in x] or [np.zeros((0, 6))])
+        raise RunnerError(
+            f"{str(path)!r} takes {fixed} observations per call (exported with --batch "
+            f"{fixed}), got {len(x)}: export it without --batch (any batch) or with --batch 1"
+        )
 
     return policy, meta

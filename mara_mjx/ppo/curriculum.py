@@ -12,10 +12,9 @@
                        the first episodes, the shaped reward)
     capped_envs(curriculum, num_envs) -> the servo-paced share's action cap, or None
 
-It is `TrainConfig.curriculum` (`mara_mjx.ppo.config`); evaluation, the saved policy and
-the exported file never read it, so it is off there by construction. Its flags are the
-train CLI's `--train_reward`, `--population`, ... (also `--ppo.population`). The
-population's exploit step is `mara_mjx.ppo.members.population`.
+It is `TrainConfig.curriculum` (`mara_mjx.ppo.config`), never read by the evaluation, the
+saved policy or the exported file. Flags: `--train_reward`, `--population`, ... (also
+`--ppo.population`); the population's exploit step: `mara_mjx.ppo.members.population`.
 """
 
 from __future__ import annotations
@@ -38,11 +37,9 @@ from mara_mjx.runtime import sharding
 @dataclasses.dataclass(frozen=True)
 class CurriculumConfig(_ConfigMixin):
     """Training-only shaping; every field's default is off. See `PRESETS` for the
-    measured combinations. No preset sets orientation_bonus (and its two scales),
-    train_reset_noise or population (and exploit_*); they stay for the recorded studies
-    that use them (benchmarks/NOTES.md sections 18 and 20, the configs of
-    benchmarks/results/random_target/) and population for the robustness study's
-    "default --population 4" (mara_mjx.bench.robustness)."""
+    measured combinations. No preset sets orientation_bonus (and its two scales) or
+    population (and exploit_*); they stay for the recorded studies that use them
+    (NOTES sections 18 and 20) and the robustness study's "default --population 4"."""
 
     train_reward: str = ""
     """Curriculum over the env's reward hyperparameters during training only, e.g.
@@ -59,6 +56,9 @@ class CurriculumConfig(_ConfigMixin):
     arm from many postures rather than one (a curriculum over the reset distribution;
     evaluation keeps the env's reset). 0 is off; ignored for an env without
     `reset_noise` in its params."""
+    train_reset_noise_final: float = -1.0
+    """What `train_reset_noise` shrinks to (rad; -1: the env's own `reset_noise`). Equal
+    to it: that noise for the whole training (0.02: the paper evaluation's starts)."""
     stagger_episodes: bool = False
     """Training only: each environment's first episode starts at a uniformly random step
     of the horizon (its step counter drawn in [0, max_episode_steps)), so the first
@@ -211,6 +211,8 @@ class CurriculumConfig(_ConfigMixin):
             "orientation_bonus_distance", self.orientation_bonus_distance, 0.0, 1.0, low_open=True
         )
         _check_range("train_reset_noise", self.train_reset_noise, 0.0, 0.5)
+        if self.train_reset_noise_final != -1.0:
+            _check_range("train_reset_noise_final", self.train_reset_noise_final, 0.0, 0.5)
         reward_curriculum(self.train_reward)
         _check_int("population", self.population, minimum=1)
         _check_range("exploit_every", self.exploit_every, 0.0, 1.0, low_open=True)
@@ -347,11 +349,11 @@ class Schedule(NamedTuple):
     """The curriculum as functions of the trainer's state (`make_schedule`)."""
 
     frac: Callable[[jax.Array], jax.Array]
-    """update -> how far the curricula are toward the env's own reward: 0 at the first
-    update, 1 from train_reward_until of the updates on."""
+    """update -> how far the curricula are toward their ends: 0 at the first update, 1
+    from train_reward_until of the updates on."""
     rollout_state: Callable[[Any, jax.Array], Any]
     """(BatchedState, update) -> the state with the rollout's reward hyperparameters and
-    reset noise (train_reward, train_reset_noise at `frac` of the way to the env's own)."""
+    reset noise (train_reward, train_reset_noise at `frac` of the way to their ends)."""
     initial_params: Callable[[], Any]
     """() -> the env params of the first episodes (None: the env's defaults)."""
     stagger: Callable[[Any, jax.Array], tuple[Any, jax.Array]]
@@ -377,8 +379,8 @@ def make_schedule(config: CurriculumConfig, env: Any, benv: Any, num_updates: in
         return jnp.clip(update.astype(jnp.float32) / until, 0.0, 1.0)
 
     def curriculum_params(params: Any, at: jax.Array) -> Any:
-        """`params` with `train_reward` and `train_reset_noise` at `at` (0: the config's
-        values, 1: the env's own) of the way to the env's defaults."""
+        """`params` with `train_reward` and `train_reset_noise` `at` (0 to 1) of the way
+        from the config's values to their ends (the env's own unless final is set)."""
         own = benv.env.default_params
         if curriculum:
             reward = params.reward.replace(
@@ -391,8 +393,9 @@ def make_schedule(config: CurriculumConfig, env: Any, benv: Any, num_updates: in
             )
             params = params.replace(reward=reward)
         if config.train_reset_noise > 0.0:
-            v = config.train_reset_noise
-            noise = jnp.full_like(params.reset_noise, v + at * (own.reset_noise - v))
+            v, end = config.train_reset_noise, config.train_reset_noise_final
+            end = own.reset_noise if end < 0.0 else end
+            noise = jnp.full_like(params.reset_noise, v + at * (end - v))
             params = params.replace(reset_noise=noise)
         return params
 
