@@ -1,10 +1,10 @@
 #!/bin/bash
 # Issue 31, after section 60 (the Orient tasks' CLI default now deploys the plan's restarts):
 #   1. NOISE=1 (default; NOISE=last: after 2; NOISE=0: not at all): the cause-level
-#      alternative, `cli --reset_noise 0.02` (trained from the paper evaluation's noisy
-#      starts) on seeds 1584-1599, where the CLI default
-#      lost 1597 (MARAOrient) and 1588 (MARACollisionOrient), judged WITHOUT the restarts
-#      (--plan_steps 0): does training from those starts remove the fixed points? Kept.
+#      alternative, `orient_first_noisy_starts` (trained from the paper evaluation's noisy
+#      starts, no plan) on seeds 1584-1599, where the CLI default
+#      lost 1597 (MARAOrient) and 1588 (MARACollisionOrient), judged as the preset deploys
+#      it, without the restarts: does training from those starts remove the fixed points?
 #   2. distill_51.sh OFFSET (default 1600, fresh) for TASK: the CLI default (the fresh-seed
 #      check of today's preset, judged with its restarts) and then its students with
 #      STUDENT (default: section 59's lookahead, K = 2).
@@ -24,9 +24,9 @@ rm -f /tmp/res/studies.log /tmp/res/sent
 export KEEP_LOG=1
 t=${TASK:-MARAOrient}
 export STUDENT="${STUDENT:-lookahead --imitation_spread 0.05 --reset_noise 0.02 --imitation_lookahead 2}"
-noise() {
-  robust noise_$t /tmp/work/noise_$t $t "cli --reset_noise 0.02" --seed_offset 1584 --plan_steps 0
-  keep "$(ls -dt /tmp/work/noise_$t/runs/$t-cli-*/ | head -1)" /tmp/res/ck_noise_$t.tgz
+noise() {  # section 64's preset (section 62 ran MARAOrient's as `cli --reset_noise 0.02`)
+  robust noise_$t /tmp/work/noise_$t $t orient_first_noisy_starts --seed_offset 1584
+  keep "$(ls -dt /tmp/work/noise_$t/runs/$t-orient_first_noisy_starts*/ | head -1)" /tmp/res/ck_noise_$t.tgz
 }
 [ "${NOISE:-1}" = 1 ] && noise
 bash benchmarks/gpu/distill_51.sh ${OFFSET:-1600} $t
