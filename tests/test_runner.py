@@ -271,3 +271,22 @@ def test_bad_inputs_and_exports_are_refused(exports, tmp_path):
         np.savez(tmp_path / "edited.npz", **arrays)
         with pytest.raises(RunnerError, match=match):
             PolicyRunner.load(tmp_path / "edited.npz")
+
+
+def test_a_file_of_a_fixed_batch_runs_any_number_of_rows():
+    """`export --batch B`: evaluate's loop asks for N rows at once; the runner calls the
+    file B rows at a time (the last call padded with the last row) and keeps row order."""
+    calls = []
+
+    def file(x):  # a graph of static batch 3: refuses any other
+        assert x.shape == (3, 2), x.shape
+        calls.append(len(x))
+        return x[:, :1] * 2.0
+
+    x = np.arange(14.0).reshape(7, 2)
+    out = runner.in_batches(file, x, 3, 1)
+    np.testing.assert_array_equal(out, x[:, :1] * 2.0)
+    assert calls == [3, 3, 3]  # 7 rows: two full calls and one padded
+    np.testing.assert_array_equal(runner.in_batches(file, x[:3], 3, 1), x[:3, :1] * 2.0)
+    assert runner.in_batches(file, x[:0], 3, 1).shape == (0, 1)
+    assert runner.in_batches(lambda r: r[:, :1], x, None, 1).shape == (7, 1)  # any batch

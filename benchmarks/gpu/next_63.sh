@@ -30,7 +30,7 @@ noise() {  # section 64's preset (section 62 ran MARAOrient's as `cli --reset_no
 }
 [ "${NOISE:-1}" = 1 ] && noise
 bash benchmarks/gpu/distill_51.sh ${OFFSET:-1600} $t
-if [ -n "$GUARD" ]; then  # the same students judged again with a 5-mm collision guard
+if [ "${GUARD:-0}" = 1 ]; then  # the same students judged again with a 5-mm collision guard
   read -ra st <<< "$STUDENT"
   teacher=$(ls -dt /tmp/work/dt_$t/runs/$t-cli-*/ | head -1)
   robust dt_${t}_${st[0]}_guard /tmp/work/dt_$t $t \

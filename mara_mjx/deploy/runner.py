@@ -386,19 +386,25 @@ def _load_onnx(path: Path, threads: int) -> tuple[Any, dict[str, Any]]:
 
     fixed = session.get_inputs()[0].shape[0]  # `export --batch B`: B; any batch: a name
     fixed = fixed if isinstance(fixed, int) else None
+    actions = int(meta["action_size"])
 
     def run(x: np.ndarray) -> np.ndarray:
         return session.run(["action"], {"obs": x})[0].astype(np.float64)
 
     def policy(obs: np.ndarray) -> np.ndarray:
-        x = obs.astype(np.float32)
-        if fixed is None or len(x) == fixed:
-            return run(x)
-        if fixed == 1:  # a file for one arm per call (`--batch 1`): the rows in turn
-            return np.concatenate([run(row[None]) for row in x] or [np.zeros((0, 6))])
-        raise RunnerError(
-            f"{str(path)!r} takes {fixed} observations per call (exported with --batch "
-            f"{fixed}), got {len(x)}: export it without --batch (any batch) or with --batch 1"
-        )
+        return in_batches(run, obs.astype(np.float32), fixed, actions)
 
     return policy, meta
+
+
+def in_batches(run: Any, x: np.ndarray, fixed: int | None, actions: int) -> np.ndarray:
+    """`run` (a file's call) on the rows of `x` (N, obs): at once where the file takes any
+    batch (`fixed` None) or N; else `fixed` rows per call (`export --batch B`, 1 for a
+    robot; evaluate's loop runs its episodes at once), the last call padded with copies of
+    the last row, whose actions are dropped -> (N, actions)."""
+    if fixed is None or len(x) == fixed:
+        return run(x)
+    n = len(x)
+    padded = np.concatenate([x, np.repeat(x[-1:], -n % fixed, axis=0)]) if n else x
+    out = [run(padded[i : i + fixed]) for i in range(0, len(padded), fixed)]
+    return np.concatenate(out)[:n] if out else np.zeros((0, actions))

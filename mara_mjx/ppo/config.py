@@ -1,4 +1,4 @@
-"""PPO configuration: frozen dataclasses, one docstring per field, presets as instances.
+"""PPO configuration: frozen dataclasses, one docstring per field (the presets: `ppo.presets`).
 
     PPOConfig      the algorithm and its networks' shape (what a PureJaxRL or brax reader
                    expects: batch, epochs, GAE, clipping, Adam, the MLP, normalisation)

@@ -52,13 +52,12 @@ class CurriculumConfig(_ConfigMixin):
     train_reset_noise: float = 0.0
     """Training only: the rollouts' episodes start at the env's reset pose plus uniform
     joint noise of this half-width (rad, at most 0.5), shrinking linearly to the env's own
-    `reset_noise` by `train_reward_until` of the updates, so early exploration sees the
-    arm from many postures rather than one (a curriculum over the reset distribution;
-    evaluation keeps the env's reset). 0 is off; ignored for an env without
-    `reset_noise` in its params."""
+    `reset_noise` (or train_reset_noise_final) by `train_reward_until` of the updates, so
+    early exploration sees the arm from many postures (evaluation keeps the env's reset).
+    0 is off; ignored for an env without `reset_noise` in its params."""
     train_reset_noise_final: float = -1.0
-    """What `train_reset_noise` shrinks to (rad; -1: the env's own `reset_noise`). Equal
-    to it: that noise for the whole training (0.02: the paper evaluation's starts)."""
+    """What `train_reset_noise` (> 0) shrinks to (rad; -1: the env's own `reset_noise`).
+    Equal to it: that noise for the whole training (0.02: the paper evaluation's starts)."""
     stagger_episodes: bool = False
     """Training only: each environment's first episode starts at a uniformly random step
     of the horizon (its step counter drawn in [0, max_episode_steps)), so the first
@@ -211,8 +210,8 @@ class CurriculumConfig(_ConfigMixin):
             "orientation_bonus_distance", self.orientation_bonus_distance, 0.0, 1.0, low_open=True
         )
         _check_range("train_reset_noise", self.train_reset_noise, 0.0, 0.5)
-        if self.train_reset_noise_final != -1.0:
-            _check_range("train_reset_noise_final", self.train_reset_noise_final, 0.0, 0.5)
+        if (end := self.train_reset_noise_final) != -1.0 and not 0.0 <= end <= 0.5:
+            raise ValueError(f"train_reset_noise_final={end!r}: -1 (the env's own) or in [0, 0.5]")
         reward_curriculum(self.train_reward)
         _check_int("population", self.population, minimum=1)
         _check_range("exploit_every", self.exploit_every, 0.0, 1.0, low_open=True)
@@ -274,7 +273,7 @@ def resolve(curriculum: CurriculumConfig, env: Any) -> CurriculumConfig:
     if not hasattr(params, "reward"):
         resolved = resolved.replace(train_reward="", train_collision_penalty=0.0)
     if not hasattr(params, "reset_noise"):
-        resolved = resolved.replace(train_reset_noise=0.0)
+        resolved = resolved.replace(train_reset_noise=0.0, train_reset_noise_final=-1.0)
     has_quat = any(part.get("name") == "quat_err" for part in layout)
     if not has_quat and resolved.orientation_bonus > 0.0:  # no orientation in the task
         resolved = resolved.replace(orientation_bonus=0.0)
