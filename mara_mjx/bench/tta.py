@@ -195,12 +195,10 @@ def read_seeds(out: Path, first: int, n: int, offset: float | None) -> dict[str,
     hashes over every seed's (in seed order); `per_seed` keeps each seed's record (the
     times: the median's seed that never reached a threshold counts as later than any)."""
     per = [read_run(out / f"seed_{s}", offset) for s in range(first, first + n)]
-    rec: dict[str, Any] = {}
-    for mm in THRESHOLDS_MM:
-        for key in (f"to_{mm:g}mm_s", f"to_{mm:g}mm_env_steps"):
-            m = statistics.median([math.inf if r[key] is None else r[key] for r in per])
-            rec[key] = (round(m) if key.endswith("env_steps") else m) if math.isfinite(m) else None
-        rec[f"reached_{mm:g}mm"] = sum(r[f"to_{mm:g}mm_s"] is not None for r in per)
+    rec = threshold_medians(per)
+    for mm in THRESHOLDS_MM:  # whole env steps (a median of an even count is a mean of two)
+        key = f"to_{mm:g}mm_env_steps"
+        rec[key] = None if rec[key] is None else round(rec[key])
     rates = [r["env_steps_per_s"] for r in per]
     for key in ("state_hash", "training_hash"):
         hashes = [r[key] for r in per]
@@ -219,19 +217,29 @@ def read_seeds(out: Path, first: int, n: int, offset: float | None) -> dict[str,
 
 
 # ------------------------------------------------------------------------ parts
+def cold_and_warm(
+    config: TTAConfig, work: Path, part: str, name: str, args: dict[str, Any]
+) -> list[dict[str, Any]]:
+    """One train command (`run_train`'s args but the cache) twice into a new compilation
+    cache `work/cache-NAME`: cold (empty), then warm, whose `same_bits_as_cold` compares
+    the final states' hashes."""
+    cache = work / f"cache-{name}"
+    cache.mkdir()
+    records: list[dict[str, Any]] = []
+    for phase in ("cold", "warm"):
+        rec = run_train(config, work, f"{part}-{name}-{phase}", {**args, "cache": str(cache)}, None)
+        rec = {**rec, "part": part, "cache": phase, "xla_ops": CLI_DEFAULT}
+        if phase == "warm":
+            rec["same_bits_as_cold"] = rec["state_hash"] == records[-1]["state_hash"]
+        records.append(rec)
+        _print(rec)
+    return records
+
+
 def tta_part(config: TTAConfig, work: Path) -> list[dict[str, Any]]:
     records = []
     for seed in config.seeds:
-        cache = work / f"cache-seed{seed}"
-        cache.mkdir()
-        for phase in ("cold", "warm"):
-            args = {"seed": seed, "cache": str(cache)}
-            rec = run_train(config, work, f"tta-seed{seed}-{phase}", args, None)
-            rec = {**rec, "part": "tta", "cache": phase, "xla_ops": CLI_DEFAULT}
-            if phase == "warm":
-                rec["same_bits_as_cold"] = rec["state_hash"] == records[-1]["state_hash"]
-            records.append(rec)
-            _print(rec)
+        records += cold_and_warm(config, work, "tta", f"seed{seed}", {"seed": seed})
     for phase in ("cold", "warm"):
         records.append(median_record([r for r in records if r["cache"] == phase], phase))
     return records
@@ -240,17 +248,8 @@ def tta_part(config: TTAConfig, work: Path) -> list[dict[str, Any]]:
 def seeds_part(config: TTAConfig, work: Path) -> list[dict[str, Any]]:
     records = []
     for n in config.seed_counts:
-        cache = work / f"cache-seeds{n}"
-        cache.mkdir()
-        for phase in ("cold", "warm"):
-            args = {"seed": config.seeds[0], "cache": str(cache), "seeds": n}
-            args["total"] = config.seeds_total_timesteps
-            rec = run_train(config, work, f"seeds{n}-{phase}", args, None)
-            rec = {**rec, "part": "seeds", "cache": phase, "xla_ops": CLI_DEFAULT}
-            if phase == "warm":
-                rec["same_bits_as_cold"] = rec["state_hash"] == records[-1]["state_hash"]
-            records.append(rec)
-            _print(rec)
+        args = {"seed": config.seeds[0], "seeds": n, "total": config.seeds_total_timesteps}
+        records += cold_and_warm(config, work, "seeds", f"n{n}", args)
     return records
 
 
@@ -261,6 +260,14 @@ def median_record(runs: list[dict[str, Any]], phase: str) -> dict[str, Any]:
     for key in ("command_s", "cli_command_time_s", "first_call_s", "env_steps_per_s"):
         values = [r[key] for r in runs if r[key] is not None]
         rec[key] = statistics.median(values) if values else None
+    return {**rec, **threshold_medians(runs)}
+
+
+def threshold_medians(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per threshold, the median over `runs` of the time and env steps to it (a run that
+    never reached it counts as later than any that did; a median falling on such a run is
+    None) and how many reached it."""
+    rec: dict[str, Any] = {}
     for mm in THRESHOLDS_MM:
         for key in (f"to_{mm:g}mm_s", f"to_{mm:g}mm_env_steps"):
             m = statistics.median([math.inf if r[key] is None else r[key] for r in runs])
