@@ -167,15 +167,9 @@ class RobustnessConfig(BenchConfig):
         check_int("eval_seed", self.eval_seed, minimum=0)
         check_int("parallel", self.parallel, minimum=0)
         check_int("select_seed", self.select_seed, minimum=-1)
-        from mara_mjx.ppo.parametrisation import (
-            check_commit_override,
-            check_plan_override,
-            check_starts_override,
-        )
+        from mara_mjx.ppo.parametrisation import check_overrides
 
-        check_plan_override(self.plan_steps)
-        check_starts_override(self.plan_starts)
-        check_commit_override(self.commit_rad)
+        check_overrides(self.plan_steps, self.plan_starts, self.commit_rad)
         if self.selection_seed == self.eval_seed:
             raise ValueError(
                 f"select_seed={self.select_seed} is eval_seed: the seeds would be chosen on "

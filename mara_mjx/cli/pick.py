@@ -58,11 +58,7 @@ from mara_mjx.cli.common import (
     parse_bool,
     run_cli,
 )
-from mara_mjx.ppo.parametrisation import (
-    check_commit_override,
-    check_plan_override,
-    check_starts_override,
-)
+from mara_mjx.ppo.parametrisation import check_overrides
 from mara_mjx.runtime import files, outputs, runs
 
 PROG = "mara_mjx.pick"
@@ -157,9 +153,7 @@ def check_args(args: argparse.Namespace) -> None:
     if args.collision_guard_mm < 0 and args.collision_guard_mm != -1:
         raise UserError(f"--collision_guard_mm must be -1 or >= 0, got {args.collision_guard_mm}")
     try:
-        check_plan_override(args.plan_steps)
-        check_starts_override(args.plan_starts)
-        check_commit_override(args.commit_rad)
+        check_overrides(args.plan_steps, args.plan_starts, args.commit_rad)
     except ValueError as e:
         raise UserError(f"--{e}") from e
 

@@ -341,22 +341,25 @@ class PolicyConfig(_ConfigMixin):
             )
 
 
-def check_plan_override(plan_steps: Any) -> None:
-    """ValueError unless `plan_steps` is an override of PolicyConfig.plan_steps as the
-    evaluations take it: -1 (as trained), or a valid plan_steps (0: off)."""
+def check_overrides(plan_steps: Any, plan_starts: Any, commit_rad: Any) -> None:
+    """ValueError unless each is an override of its PolicyConfig field as the evaluations
+    take it: -1 (as trained or exported), or a valid value (0: off)."""
     if not _is_int(plan_steps) or not -1 <= plan_steps <= MAX_PLAN_STEPS:
         raise ValueError(
             f"plan_steps must be -1 (as trained) or in [0, {MAX_PLAN_STEPS}], got {plan_steps!r}"
         )
-
-
-def check_starts_override(plan_starts: Any) -> None:
-    """ValueError unless `plan_starts` is an override of PolicyConfig.plan_starts as the
-    evaluations take it: -1 (as trained), or a valid plan_starts (0: off)."""
     if not _is_int(plan_starts) or not -1 <= plan_starts <= MAX_PLAN_STARTS:
         raise ValueError(
             f"plan_starts must be -1 (as trained) or in [0, {MAX_PLAN_STARTS}], got {plan_starts!r}"
         )
+    try:
+        if commit_rad != -1.0:
+            _check_range("commit_rad", commit_rad, 0.0, MAX_COMMIT_RAD)
+    except ValueError:
+        raise ValueError(
+            f"commit_rad must be -1 (as trained) or a number in [0, {MAX_COMMIT_RAD}], "
+            f"got {commit_rad!r}"
+        ) from None
 
 
 def plan_overrides(plan_steps: int | None, plan_starts: int | None) -> dict[str, int]:
@@ -372,19 +375,6 @@ def plan_overrides(plan_steps: int | None, plan_starts: int | None) -> dict[str,
     if plan_starts is not None:
         plan["plan_starts"] = int(plan_starts)
     return plan
-
-
-def check_commit_override(commit_rad: Any) -> None:
-    """ValueError unless `commit_rad` is an override of PolicyConfig.commit_rad as the
-    evaluations take it: -1 (as trained or exported), or a valid commit_rad (0: off)."""
-    try:
-        if commit_rad != -1.0:
-            _check_range("commit_rad", commit_rad, 0.0, MAX_COMMIT_RAD)
-    except ValueError:
-        raise ValueError(
-            f"commit_rad must be -1 (as trained) or a number in [0, {MAX_COMMIT_RAD}], "
-            f"got {commit_rad!r}"
-        ) from None
 
 
 def check_plan_period(plan_steps: int, env: Any) -> None:

@@ -112,12 +112,6 @@ class EvalConfig(_ConfigMixin):
         _check_range("tolerance_mm", self.tolerance_mm, 0.0, math.inf)
         if self.collision_guard_mm != -1.0:
             _check_range("collision_guard_mm", self.collision_guard_mm, 0.0, 100.0)
-        from mara_mjx.ppo.parametrisation import (
-            check_commit_override,
-            check_plan_override,
-            check_starts_override,
-        )
+        from mara_mjx.ppo.parametrisation import check_overrides
 
-        check_plan_override(self.plan_steps)
-        check_starts_override(self.plan_starts)
-        check_commit_override(self.commit_rad)
+        check_overrides(self.plan_steps, self.plan_starts, self.commit_rad)
