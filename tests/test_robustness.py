@@ -43,7 +43,7 @@ def test_jobs_are_the_users_seeds_command(tmp_path):
     assert [(j.task, j.recipe, j.preset) for j in jobs] == [
         ("MARA", "cli", "ik_finish"),
         ("MARA", "default --randomize", "default"),
-        ("MARAOrient", "cli", "orient_first_noisy_starts"),
+        ("MARAOrient", "cli", "orient_first"),
         ("MARAOrient", "default --randomize", "default"),
     ]
     assert len({j.out for j in jobs}) == 4

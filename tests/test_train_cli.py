@@ -358,7 +358,7 @@ def test_the_preset_follows_the_task_unless_one_is_given():
     plan and its restarts at 5e7 steps; MARACollisionRandomTarget with the collision guard,
     'random_target_plan_guard'), an *OrientRandomTarget one with 'random_target_orient'
     and its deployed plan and restarts ('random_target_orient_plan'), the fixed Orient
-    tasks with 'orient_first_noisy_starts' (trained from noisy starts, no plan), MARACollision with 'staggered_ik_finish' and MARA with
+    tasks with 'orient_first', MARACollision with 'staggered_ik_finish' and MARA with
     'ik_finish'; --preset and flags win. No compile."""
 
     def ppo(*argv):  # the TrainConfig
@@ -386,10 +386,7 @@ def test_the_preset_follows_the_task_unless_one_is_given():
     assert fields("--env", "MARAOrientRandomTarget", "--ik_gate", "0.05").ik_gate == 0.05
     for task in ("MARAOrient", "MARACollisionOrient"):
         first = fields("--env", task)
-        assert ppo("--env", task) == ppo("--env", task, "--preset", "orient_first_noisy_starts")
-        assert ppo("--env", task) == ppo("--env", task, "--preset", "orient_first").replace(
-            plan_steps=0, plan_starts=0, train_reset_noise=0.02, train_reset_noise_final=0.02)
-        assert first.train_reset_noise == first.train_reset_noise_final == 0.02
+        assert ppo("--env", task) == ppo("--env", task, "--preset", "orient_first")
         assert first.ik_orient_first and first.train_ik_gate_roll and first.stagger_episodes
         assert first.train_ik_orient_loose and first.ik_prior == "residual"
         assert first.total_timesteps == fields("--env", "MARA").total_timesteps
@@ -561,10 +558,10 @@ def test_population_run_trains_checkpoints_and_evaluates(cli_env, tmp_path):
 def test_orient_task_default_trains_and_its_checkpoint_runs_without_the_training_rules(
     cli_env, tmp_path
 ):
-    """A fixed Orient task with no --preset (orient_first_noisy_starts) through the CLIs: the run records
+    """A fixed Orient task with no --preset (orient_first) through the CLIs: the run records
     the training-only rules (the roll gate, the loose standoff), `evaluate` reads the
     checkpoint, the policy a user loads from it runs without them, and `export` refuses
-    it as .npz with the way out (--preset default) named, writing nothing."""
+    it with the way out (--preset default) named, writing nothing."""
     from mara_mjx.ppo.policy import make_policy
 
     out = tmp_path / "run"
@@ -579,10 +576,9 @@ def test_orient_task_default_trains_and_its_checkpoint_runs_without_the_training
     ppo = {**saved["policy"], **saved["curriculum"]}  # the sections the fields moved to
     assert ppo["ik_orient_first"] and ppo["train_ik_gate_roll"] and ppo["stagger_episodes"]
     assert ppo["train_ik_orient_loose"] and ppo["probe_reach_steps"] == 5
-    # trained from the evaluation's noisy starts and deployed without the plan and its
-    # restarts (benchmarks/NOTES.md section 65); the 5-mm guard deployed
-    assert (ppo["plan_steps"], ppo["plan_starts"]) == (0, 0) and ppo["collision_guard_mm"] == 5
-    assert ppo["train_reset_noise"] == ppo["train_reset_noise_final"] == 0.02
+    # deployed: the plan and its restarts (benchmarks/NOTES.md section 60), which
+    # `evaluate` below runs as the checkpoint's own rules
+    assert (ppo["plan_steps"], ppo["plan_starts"]) == (16, 16)
     rows = read_rows(out / "progress.csv")  # one update per call: every row probed
     assert rows and all(float(r["reach_error_mm"]) > 0.0 for r in rows), rows
     report = tmp_path / "eval.json"
