@@ -20,9 +20,24 @@ one() {  # NAME TASK OFFSET RECIPE: one study of 16 seeds, its checkpoints kept
   robust $n $work $t "$4" --seed_offset $3
   keep "$(ls -dt $work/runs/$t-*/ | head -1)" /tmp/res/ck_$n.tgz
 }
-${MCORT_FIRST:+one mcort_1616 MARACollisionOrientRandomTarget 1616 cli}
-one noise_mco_1616 MARACollisionOrient 1616 orient_first_noisy_starts
-one noise_mao_1616 MARAOrient 1616 orient_first_noisy_starts
-one noise_mco_1584 MARACollisionOrient 1584 orient_first_noisy_starts
-[ -n "$MCORT_FIRST" ] || one mcort_1616 MARACollisionOrientRandomTarget 1616 cli
+# STUDIES (words, in order; default as run for study 65): which of
+#   noise_mco noise_mao noise_1584  the three above (study 65)
+#   mcort                           MARACollisionOrientRandomTarget's CLI default, 1616-1631
+#   plan_mco plan_mao               section 65's candidate default, `orient_first_noisy_starts`
+#                                   with the plan's restarts deployed, on fresh seeds 1632-1647
+#   (MCORT_FIRST=1, as before: mcort first)
+plan="orient_first_noisy_starts --plan_steps 16 --plan_starts 16"
+default="noise_mco noise_mao noise_1584 mcort"
+[ -n "$MCORT_FIRST" ] && default="mcort noise_mco noise_mao noise_1584"
+for s in ${STUDIES:-$default}; do
+  case $s in
+    noise_mco) one noise_mco_1616 MARACollisionOrient 1616 orient_first_noisy_starts ;;
+    noise_mao) one noise_mao_1616 MARAOrient 1616 orient_first_noisy_starts ;;
+    noise_1584) one noise_mco_1584 MARACollisionOrient 1584 orient_first_noisy_starts ;;
+    mcort) one mcort_1616 MARACollisionOrientRandomTarget 1616 cli ;;
+    plan_mco) one plan_mco_1632 MARACollisionOrient 1632 "$plan" ;;
+    plan_mao) one plan_mao_1632 MARAOrient 1632 "$plan" ;;
+    *) echo "unknown study $s" >> /tmp/res/studies.log ;;
+  esac
+done
 driver_done
