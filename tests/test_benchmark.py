@@ -471,3 +471,18 @@ def test_the_parser_starts_no_jax_backend():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1] == "not started"
+
+
+def test_a_study_s_recorded_command_runs_the_same_study():
+    """The command a study records (JSON, markdown) quotes a recipe with flags: split as a
+    shell splits it, it gives back the argv the study ran with (joined with plain spaces,
+    `--recipes cli --randomize` hands --randomize to the study, not to the recipe)."""
+    import shlex
+
+    from mara_mjx.bench.runner import command_line
+
+    argv = ["robustness", "--recipes", "orient_first_noisy_starts --plan_steps 16", "--seeds", "2"]
+    line = command_line(argv)
+    assert shlex.split(line) == ["python", "-m", "mara_mjx.benchmark", *argv]
+    assert "'orient_first_noisy_starts --plan_steps 16'" in line
+    assert command_line(["env", "--quick"]) == "python -m mara_mjx.benchmark env --quick"

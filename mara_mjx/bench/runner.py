@@ -19,6 +19,7 @@ import dataclasses
 import importlib
 import json
 import platform
+import shlex
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -99,6 +100,12 @@ STUDIES = {
     "tta": "mara_mjx.bench.tta:STUDY",
     "robustness": "mara_mjx.bench.robustness:STUDY",
 }
+
+
+def command_line(argv: Sequence[str]) -> str:
+    """The study's command as a shell reads it back: an argument with spaces (a recipe
+    with flags, `--recipes "cli --randomize"`) quoted, so a copy of it runs the same study."""
+    return shlex.join(["python", "-m", "mara_mjx.benchmark", *argv])
 
 
 def load_study(name: str) -> Study:
@@ -340,8 +347,7 @@ def main(argv: Sequence[str] | None = None, description: str = "") -> None:
             parser.error(f"{name}: {e}")
     meta = {
         "study": name,
-        "command": "python -m mara_mjx.benchmark "
-        + " ".join(sys.argv[1:] if argv is None else argv),
+        "command": command_line(sys.argv[1:] if argv is None else argv),
         "versions": versions(),
         "git_commit": runs.git_commit(),
         "device": device_info(),
