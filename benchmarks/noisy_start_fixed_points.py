@@ -7,9 +7,12 @@ seeds (benchmarks/NOTES.md section 60: fixed points of the learnt step from star
 training, which begins at the exact reset pose, never visits).
 
     python benchmarks/noisy_start_fixed_points.py RUN/seed_S [--starts 64] [--steps 300]
-        [--noise 0.02] [--key 7] [--plan_steps K --plan_starts M]
+        [--noise 0.02] [--key 7] [--plan_steps K --plan_starts M] [--stochastic]
 
 --plan_steps/--plan_starts override the checkpoint's deployed plan (-1: as trained).
+--stochastic: the network's Gaussian sampled (mean + exp(log_std) noise, the deployed
+network: without the training-only rules) instead of the deterministic policy, from the
+same starts: does exploration leave a deterministic fixed point (NOTES section 65)?
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tolerance_mm", type=float, default=5.0)
     p.add_argument("--plan_steps", type=int, default=-1)
     p.add_argument("--plan_starts", type=int, default=-1)
+    p.add_argument("--stochastic", action="store_true")
     a = p.parse_args(argv)
     jax.config.update("jax_default_matmul_precision", "highest")
     arrays, meta = ckpt.load_checkpoint(ckpt.find_checkpoint(a.run))
@@ -46,9 +50,18 @@ def main(argv: list[str] | None = None) -> int:
     params = env.make_params(reset_noise=a.noise)
     keys = jax.random.split(jax.random.key(a.key), a.starts)
     state = jax.vmap(lambda k: env.reset(k, params))(keys)
-    step = jax.jit(jax.vmap(lambda s: env.step(s, policy(s.obs))))
-    for _ in range(a.steps):
-        state = step(state)
+    if a.stochastic:
+
+        def act(s, k):
+            mean, log_std = policy.distribution(s.obs)
+            return mean + jax.numpy.exp(log_std) * jax.random.normal(k, mean.shape)
+
+        step = jax.jit(jax.vmap(lambda s, k: env.step(s, act(s, k))))
+    else:
+        step = jax.jit(jax.vmap(lambda s, k: env.step(s, policy(s.obs))))
+    noise_key = jax.random.key(a.key + 1)
+    for i in range(a.steps):
+        state = step(state, jax.random.split(jax.random.fold_in(noise_key, i), a.starts))
     mm = 1000.0 * np.asarray(state.metrics["distance"])
     q = np.asarray(state.obs[:, :6])
     off = mm > a.tolerance_mm
