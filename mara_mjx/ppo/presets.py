@@ -131,8 +131,8 @@ PRESETS["orient_first"] = PRESETS["random_target_orient"].replace(
 )
 # orient_first trained from the paper evaluation's starts (0.02 rad of joint noise for the
 # whole training; the training of `--preset orient_first --reset_noise 0.02`, rounding
-# aside) and deployed without the plan: its own step has no wrong fixed point from those
-# starts, so the exported file is the small one (8 ms a decision). Sections 62 and 65: 0
+# aside) and deployed without the plan: its own step mostly has no wrong fixed point from
+# those starts, so the exported file is the small one (8 ms a decision). Sections 62, 65: 0
 # of 16 failed on each task's fresh seeds 1616-1631 and on 1584-1599, but with 100
 # episodes of other evaluation seeds MARACollisionOrient's 1584 ends 2% of its noisy
 # starts ~450 mm off (the restarts rescue them): not the CLI's choice.
