@@ -25,7 +25,12 @@ one() {  # NAME TASK OFFSET RECIPE: one study of 16 seeds, its checkpoints kept
 #   mcort                           MARACollisionOrientRandomTarget's CLI default, 1616-1631
 #   plan_mco plan_mao               section 65's candidate default, `orient_first_noisy_starts`
 #                                   with the plan's restarts deployed, on fresh seeds 1632-1647
+#   distill_mco                     issue 31's last row: MARACollisionOrient's CLI default on
+#                                   fresh seeds 1600-1615 and its students with MARAOrient's
+#                                   recipe (distill_51.sh, STUDENT as next_63.sh's; about
+#                                   1,150 s on an H100; poll with SNAP=/tmp/work/dt_MARACollisionOrient)
 #   (MCORT_FIRST=1, as before: mcort first)
+# e.g. the next lease, by value: STUDIES="distill_mco plan_mco plan_mao mcort"
 plan="orient_first_noisy_starts --plan_steps 16 --plan_starts 16"
 default="noise_mco noise_mao noise_1584 mcort"
 [ -n "$MCORT_FIRST" ] && default="mcort noise_mco noise_mao noise_1584"
@@ -34,6 +39,8 @@ for s in ${STUDIES:-$default}; do
     noise_mco) one noise_mco_1616 MARACollisionOrient 1616 orient_first_noisy_starts ;;
     noise_mao) one noise_mao_1616 MARAOrient 1616 orient_first_noisy_starts ;;
     noise_1584) one noise_mco_1584 MARACollisionOrient 1584 orient_first_noisy_starts ;;
+    distill_mco) KEEP_LOG=1 STUDENT="lookahead --imitation_spread 0.05 --reset_noise 0.02 --imitation_lookahead 2" \
+      bash benchmarks/gpu/distill_51.sh 1600 MARACollisionOrient ;;
     mcort) one mcort_1616 MARACollisionOrientRandomTarget 1616 cli ;;
     plan_mco) one plan_mco_1632 MARACollisionOrient 1632 "$plan" ;;
     plan_mao) one plan_mao_1632 MARAOrient 1632 "$plan" ;;
