@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 from test_train_cli import CKPT1, CKPT2, TINY, read_rows, run_module
 
+from mara_mjx.cli import train as train_cli
+from mara_mjx.cli.common import run_cli
 from mara_mjx.ppo import checkpoint as ckpt
 
 # ------------------------------------------------------------------ several seeds
@@ -172,7 +174,7 @@ def test_a_seeds_run_resumes_from_its_newest_common_checkpoint(seeds_run, cli_en
         assert [int(r["update"]) for r in rows] == [1, 2]
 
 
-def test_pick_cli_ranks_the_seeds_on_the_real_driver(seeds_run, cli_env, tmp_path):
+def test_pick_cli_ranks_the_seeds_on_the_real_driver(seeds_run, cli_env, tmp_path, capsys):
     """`python -m mara_mjx.pick RUN_OF_SEEDS` as the sim-to-real recipe runs it (tiny:
     2 draws at one speed): every seed judged on the real driver with randomised physics,
     ranked by the study's selection_score, the first named as the one to deploy; its own
@@ -205,17 +207,19 @@ def test_pick_cli_ranks_the_seeds_on_the_real_driver(seeds_run, cli_env, tmp_pat
 
     assert is_ranking(report_path) and not is_ranking(out / "seeds.json")
 
+    from mara_mjx.cli import pick  # refusals, in-process (before anything is compiled)
+
     mine = tmp_path / "mine.json"
     mine.write_text('{"keep": 1}')
-    refused = run_module(cli_env, "mara_mjx.pick", str(out), "--json", str(mine))
-    assert refused.returncode == 2 and "exists and was not written by" in refused.stderr
+    assert run_cli(pick.main, pick.PROG, [str(out), "--json", str(mine)]) == 2
+    assert "exists and was not written by" in capsys.readouterr().err
     assert mine.read_text() == '{"keep": 1}'
-    single = run_module(cli_env, "mara_mjx.pick", str(out / "seed_0"))
-    assert single.returncode == 2 and "not the folder of a several-seed run" in single.stderr
+    assert run_cli(pick.main, pick.PROG, [str(out / "seed_0")]) == 2
+    assert "not the folder of a several-seed run" in capsys.readouterr().err
 
 
 def test_a_distill_run_learns_each_seed_from_the_same_seed_of_its_teacher(
-    seeds_run, cli_env, tmp_path
+    seeds_run, cli_env, tmp_path, capsys, compiled
 ):
     """--preset distill --teacher RUN --seeds 2: student seed s holds teacher seed s (the
     tiny two-seed run, MARA's CLI default with its IK finish) in its checkpoints, records
@@ -252,8 +256,11 @@ def test_a_distill_run_learns_each_seed_from_the_same_seed_of_its_teacher(
         ),
         ([], "give --teacher RUN"),
     ]
-    for extra, message in bad:
-        proc = run_module(cli_env, "mara_mjx.train", *base, *extra, "--out", str(tmp_path / "x"))
-        assert proc.returncode != 0 and message in proc.stderr, (extra, proc.stderr[-2000:])
-        assert "Traceback" not in proc.stderr
+    for extra, message in bad:  # in-process (the CLI refuses before it compiles anything)
+        argv = [*base, *extra, "--out", str(tmp_path / "x")]
+        compiled.clear()
+        code = run_cli(train_cli.main, train_cli.PROG, argv)
+        err = capsys.readouterr().err
+        assert code == 2 and message in err and "Traceback" not in err, (extra, err[-2000:])
         assert not (tmp_path / "x").exists()  # nothing written for a refused command
+        assert not [n for n in compiled if n in ("jit(run)", "jit(init)")], extra
