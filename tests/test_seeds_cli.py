@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from test_train_cli import CKPT1, CKPT2, TINY, read_rows, run_module
 
+from mara_mjx.cli import pick
 from mara_mjx.cli import train as train_cli
 from mara_mjx.cli.common import run_cli
 from mara_mjx.ppo import checkpoint as ckpt
@@ -203,12 +204,10 @@ def test_pick_cli_ranks_the_seeds_on_the_real_driver(seeds_run, cli_env, tmp_pat
     assert f"chosen: seed {report['chosen']}, {out}/seed_{report['chosen']}" in text
     assert text.splitlines()[0] in proc.stdout
 
-    from mara_mjx.cli.pick import is_ranking  # a rerun replaces its own ranking
+    # a rerun replaces its own ranking
+    assert pick.is_ranking(report_path) and not pick.is_ranking(out / "seeds.json")
 
-    assert is_ranking(report_path) and not is_ranking(out / "seeds.json")
-
-    from mara_mjx.cli import pick  # refusals, in-process (before anything is compiled)
-
+    # refusals, in-process (before anything is compiled)
     mine = tmp_path / "mine.json"
     mine.write_text('{"keep": 1}')
     assert run_cli(pick.main, pick.PROG, [str(out), "--json", str(mine)]) == 2
