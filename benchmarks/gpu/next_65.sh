@@ -29,8 +29,11 @@ one() {  # NAME TASK OFFSET RECIPE: one study of 16 seeds, its checkpoints kept
 #                                   fresh seeds 1600-1615 and its students with MARAOrient's
 #                                   recipe (distill_51.sh, STUDENT as next_63.sh's; about
 #                                   1,150 s on an H100; poll with SNAP=/tmp/work/dt_MARACollisionOrient)
+#   tta_seeds                       issue 35: `benchmark tta --parts seeds` on MARACollisionOrient,
+#                                   16 seeds in one program cold and warm (PPO env steps/s, bits)
 #   (MCORT_FIRST=1, as before: mcort first)
-# e.g. the next lease, by value: STUDIES="distill_mco plan_mco plan_mao mcort"
+# e.g. the next lease, by value: STUDIES="mcort plan_mao tta_seeds" (section 67 ran the first two of
+# "distill_mco plan_mco plan_mao mcort")
 plan="orient_first_noisy_starts --plan_steps 16 --plan_starts 16"
 default="noise_mco noise_mao noise_1584 mcort"
 [ -n "$MCORT_FIRST" ] && default="mcort noise_mco noise_mao noise_1584"
@@ -44,6 +47,10 @@ for s in ${STUDIES:-$default}; do
     mcort) one mcort_1616 MARACollisionOrientRandomTarget 1616 cli ;;
     plan_mco) one plan_mco_1632 MARACollisionOrient 1632 "$plan" ;;
     plan_mao) one plan_mao_1632 MARAOrient 1632 "$plan" ;;
+    tta_seeds) python -m mara_mjx.benchmark tta --tasks MARACollisionOrient --parts seeds --seeds 1000 \
+        --seed_counts 16 ${QUICK:+--quick} --out /tmp/res/tta_seeds > /tmp/res/tta_seeds.log 2>&1
+      echo "tta_seeds DONE $?" >> /tmp/res/studies.log
+      pack tta_seeds ;;
     *) echo "unknown study $s" >> /tmp/res/studies.log ;;
   esac
 done
