@@ -32,7 +32,7 @@ one() {  # NAME TASK OFFSET RECIPE: one study of 16 seeds, its checkpoints kept
 #   tta_seeds                       issue 35: `benchmark tta --parts seeds` on MARACollisionOrient,
 #                                   16 seeds in one program cold and warm (PPO env steps/s, bits)
 #   (MCORT_FIRST=1, as before: mcort first)
-# e.g. the next lease, by value: STUDIES="mcort plan_mao tta_seeds" (section 67 ran the first two of
+# e.g. the next lease, by value: STUDIES="mcort tta_seeds plan_mao" (section 67 ran the first two of
 # "distill_mco plan_mco plan_mao mcort")
 plan="orient_first_noisy_starts --plan_steps 16 --plan_starts 16"
 default="noise_mco noise_mao noise_1584 mcort"
