@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from mara_mjx.cli import evaluate as evaluate_cli
+from mara_mjx.cli import export as export_cli
 from mara_mjx.cli import train as train_cli
 from mara_mjx.cli.common import run_cli
 from mara_mjx.ppo import checkpoint as ckpt
@@ -556,7 +557,7 @@ def test_population_run_trains_checkpoints_and_evaluates(cli_env, tmp_path):
 
 
 def test_orient_task_default_trains_and_its_checkpoint_runs_without_the_training_rules(
-    cli_env, tmp_path, capsys
+    cli_env, tmp_path, capsys, compiled
 ):
     """A fixed Orient task with no --preset (orient_first) through the CLIs: the run records
     the training-only rules (the roll gate, the loose standoff), `evaluate` reads the
@@ -588,13 +589,13 @@ def test_orient_task_default_trains_and_its_checkpoint_runs_without_the_training
     policy = make_policy(str(out / CKPT2))
     assert policy.config.policy.train_ik_gate_roll and not policy.network.ik_gate_roll
     assert policy.config.policy.train_ik_orient_loose and not policy.network.ik_orient_loose
-    exported = tmp_path / "policy.npz"  # (in-process: a refusal compiles nothing)
-    from mara_mjx.cli.export import main as export_main
-
+    exported = tmp_path / "policy.npz"  # in-process: the refusal compiles nothing
     capsys.readouterr()
-    assert run_cli(export_main, "export", [str(out), str(exported)]) == 2
+    compiled.clear()
+    assert run_cli(export_cli.main, export_cli.PROG, [str(out), str(exported)]) == 2
     assert "--preset default" in capsys.readouterr().err
     assert not exported.exists()
+    assert not compiled, compiled
 
 
 def test_a_source_copy_without_git_still_names_its_version_and_commit(monkeypatch, tmp_path):

@@ -10,6 +10,7 @@
 #   mcort NAME RECIPE FLAGS...: one MARACollisionOrientRandomTarget robustness study (real
 #     driver without the rate limit, evaluation seed 1000) into /tmp/res/NAME, packed;
 #   pack NAME: /tmp/res/NAME and NAME.log into /tmp/res/NAME.tgz (whole or not at all);
+#   tta_seeds COUNTS...: issue 35's `benchmark tta --parts seeds` on MARACollisionOrient, packed;
 #   robust NAME WORK TASKS RECIPE FLAGS...: one robustness study of 16 seeds (evaluation
 #     seed 1000, QUICK=1 its tiny CPU settings) on the training in WORK, packed; judged NAME
 #     WORK RECIPE FLAGS...: the same of MARACollisionOrientRandomTarget (starts_49.sh);
@@ -47,6 +48,13 @@ study() {
     --tasks MARACollision --recipes "$recipe" --real_driver --rate_limit false "$@" \
     --out /tmp/res/$name --work_dir /tmp/work/$name > /tmp/res/$name.log 2>&1
   echo "$name DONE $?" >> /tmp/res/studies.log
+}
+tta_seeds() {  # COUNTS...: issue 35's `tta --parts seeds` on MARACollisionOrient (PPO env
+  # steps/s with --seeds N, bits cold vs warm; QUICK=1 its tiny CPU settings), packed
+  python -m mara_mjx.benchmark tta --tasks MARACollisionOrient --parts seeds --seeds 1000 \
+    --seed_counts "$@" ${QUICK:+--quick} --out /tmp/res/tta_seeds > /tmp/res/tta_seeds.log 2>&1
+  echo "tta_seeds DONE $?" >> /tmp/res/studies.log
+  pack tta_seeds
 }
 pack() {
   tar czf /tmp/res/$1.tgz.part -C /tmp/res $(cd /tmp/res && ls -d $1 $1.log 2>/dev/null) && mv /tmp/res/$1.tgz.part /tmp/res/$1.tgz

@@ -38,10 +38,5 @@ if [ "${GUARD:-0}" = 1 ]; then  # the same students judged again with a 5-mm col
     --collision_guard_mm 5
 fi
 [ "${NOISE:-1}" = last ] && noise
-if [ -n "$SEEDS_TTA" ]; then  # issue 35: PPO env steps/s with --seeds N, bits cold vs warm
-  python -m mara_mjx.benchmark tta --tasks MARACollisionOrient --parts seeds --seeds 1000 \
-    --seed_counts $SEEDS_TTA ${QUICK:+--quick} --out /tmp/res/tta_seeds > /tmp/res/tta_seeds.log 2>&1
-  echo "tta_seeds DONE $?" >> /tmp/res/studies.log
-  pack tta_seeds
-fi
+[ -n "$SEEDS_TTA" ] && tta_seeds $SEEDS_TTA  # issue 35: PPO env steps/s with --seeds N
 echo DRIVER_DONE >> /tmp/res/studies.log

@@ -47,10 +47,7 @@ for s in ${STUDIES:-$default}; do
     mcort) one mcort_1616 MARACollisionOrientRandomTarget 1616 cli ;;
     plan_mco) one plan_mco_1632 MARACollisionOrient 1632 "$plan" ;;
     plan_mao) one plan_mao_1632 MARAOrient 1632 "$plan" ;;
-    tta_seeds) python -m mara_mjx.benchmark tta --tasks MARACollisionOrient --parts seeds --seeds 1000 \
-        --seed_counts 16 ${QUICK:+--quick} --out /tmp/res/tta_seeds > /tmp/res/tta_seeds.log 2>&1
-      echo "tta_seeds DONE $?" >> /tmp/res/studies.log
-      pack tta_seeds ;;
+    tta_seeds) tta_seeds 16 ;;
     *) echo "unknown study $s" >> /tmp/res/studies.log ;;
   esac
 done
