@@ -5,7 +5,8 @@ least-squares step, which reaches from most postures): the own landing is kept w
 reaches, a restart's is taken only where it reaches, more targets end reached; the
 options' bad values refused; the evaluation's and export's overrides (the ONNX trace of
 a policy with a restart: tests/test_plan.py). A restart is taken only where the servos'
-path to it keeps PLAN_CLEAR_MM from every contact, and of those the shortest."""
+path to it keeps PLAN_CLEAR_MM from every contact, and of those the shortest; where none
+reaches, the own landing's other wrist branch, solved by the IK step alone."""
 
 from __future__ import annotations
 
@@ -18,11 +19,16 @@ from test_export_plots import make_run
 import mara_mjx
 from mara_mjx.envs.clearance import clearance
 from mara_mjx.envs.geometry import quat_conj, quat_mul
-from mara_mjx.envs.task_space import nominal_chain, pose_step
+from mara_mjx.envs.task_space import joint_ranges, nominal_chain, pose_step
 from mara_mjx.ppo import PolicyConfig, make_policy, parametrisation
 from mara_mjx.ppo.config import EvalConfig
 from mara_mjx.ppo.evaluation import with_deployed
-from mara_mjx.ppo.parametrisation import PLAN_KEEP_MM, PLAN_PATH_POINTS, PLAN_START_STEPS
+from mara_mjx.ppo.parametrisation import (
+    PLAN_CLEAR_MM,
+    PLAN_KEEP_MM,
+    PLAN_PATH_POINTS,
+    PLAN_START_STEPS,
+)
 from mara_mjx.ppo.policy import (
     _observation,
     _target,
@@ -31,6 +37,7 @@ from mara_mjx.ppo.policy import (
     planned_landing,
     restarted_landing,
     start_postures,
+    wrist_flip,
 )
 
 IK = {"ik_prior": "residual", "ik_gate": 0.1}
@@ -162,3 +169,30 @@ def test_the_overrides_turn_restarts_on_and_off(tmp_path):
     with pytest.raises(ExportError, match="--plan_starts: .*needs plan_steps > 0"):
         export_policy(run, tmp_path / "p.npz", plan_steps=0, plan_starts=2)
     assert not (tmp_path / "p.npz").exists()
+
+
+def test_the_other_wrist_branch_is_the_last_resort_where_joint_4_is_at_its_stop():
+    # the pose of study 68's seed 1629, episode 18 (MARACollisionOrientRandomTarget): a
+    # network that always lands at joint 4's stop (-3.14), 44 deg of yaw short; its
+    # restarts land there too. The target is where the other wrist branch reaches it.
+    chain = nominal_chain()
+    lo, hi = (np.asarray(x) for x in joint_ranges())
+    q = jnp.asarray(np.random.default_rng(5).uniform(0.7 * lo, 0.7 * hi, (64, 6)), jnp.float32)
+    p0, r0 = jax.vmap(chain.tcp)(q)
+    p1, r1 = jax.vmap(chain.tcp)(wrist_flip(q))
+    assert float(jnp.max(jnp.linalg.norm(p1 - p0, axis=-1))) < 1.7e-3  # the wrist's offset
+    assert float(jnp.max(jnp.abs(r1 - r0))) < 1e-5  # the tool's orientation: the same
+    assert bool(jnp.all((wrist_flip(q) >= -np.pi) & (wrist_flip(q) <= np.pi)))
+    stuck = jnp.array([1.64, 0.67, 2.12, -3.14, -1.32, 2.29])
+    reach = jnp.array([[2.14, 0.33, 1.92, -0.41, 1.45, 0.43]])  # where seed 1616 lands
+    tp, tq = jax.vmap(chain.tcp)(reach)
+    here = jnp.zeros((1, 6))
+    obs = _observation(here, *jax.vmap(chain.tcp)(here), jnp.zeros_like(tp), tp, tq, True)
+
+    def pinned(o):
+        return jnp.broadcast_to(stuck, o.shape[:-1] + (6,))
+
+    got = jax.jit(lambda o: restarted_landing(pinned, o, 1, 4))(obs)
+    assert float(landing_error(stuck[None], tp, tq, True)[0]) > 40.0  # the own landing misses
+    assert float(landing_error(got, tp, tq, True)[0]) <= PLAN_KEEP_MM
+    assert float(path_clearance(here, got, PLAN_PATH_POINTS)[0]) >= PLAN_CLEAR_MM / 1000.0
