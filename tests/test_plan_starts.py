@@ -19,7 +19,7 @@ from test_export_plots import make_run
 import mara_mjx
 from mara_mjx.envs.clearance import clearance
 from mara_mjx.envs.geometry import quat_conj, quat_mul
-from mara_mjx.envs.task_space import joint_ranges, nominal_chain, pose_step
+from mara_mjx.envs.task_space import joint_ranges, nominal_chain, pose_step, wrist_flip
 from mara_mjx.ppo import PolicyConfig, make_policy, parametrisation
 from mara_mjx.ppo.config import EvalConfig
 from mara_mjx.ppo.evaluation import with_deployed
@@ -37,7 +37,6 @@ from mara_mjx.ppo.policy import (
     planned_landing,
     restarted_landing,
     start_postures,
-    wrist_flip,
 )
 
 IK = {"ik_prior": "residual", "ik_gate": 0.1}

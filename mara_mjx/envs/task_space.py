@@ -49,7 +49,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mara_mjx.envs.chain import Chain
-from mara_mjx.envs.geometry import quat_canonical
+from mara_mjx.envs.geometry import quat_canonical, quat_conj, quat_mul
 from mara_mjx.envs.linalg import spd_solve
 
 POSITION_SCALE = 0.1
@@ -373,3 +373,32 @@ def pose_step_wrapping(
     if rot is None:
         return jnp.vectorize(one, signature="(6),(3)->(6),()")(q, e)
     return jnp.vectorize(one, signature="(6),(3),(4)->(6),()")(q, e, rot)
+
+
+def wrist_flip(q: jax.Array) -> jax.Array:
+    """(..., 6) rad -> the other wrist branch of the same tool pose: joints 4 and 6 half a
+    turn round (the way that stays within their +-pi ranges) and joint 5 mirrored. On the
+    nominal chain the tool's orientation is the same to rounding and the TCP 1.6 mm away
+    (the wrist's three axes miss one point by that much), so IK steps from it converge on
+    that branch."""
+    half = jnp.float32(np.pi)
+    turn = lambda x: x - half * jnp.where(x < 0.0, -1.0, 1.0)  # noqa: E731
+    return jnp.stack([q[..., 0], q[..., 1], q[..., 2], turn(q[..., 3]), -q[..., 4],
+                      turn(q[..., 5])], axis=-1)  # fmt: skip
+
+
+def ik_landing(q: jax.Array, target_pos: jax.Array, target_quat, steps: int) -> jax.Array:
+    """(G, 6) rad -> (G, 6): `steps` IK steps (`pose_step`, with the long way round for
+    the last joint where the orientation is asked) on the nominal arm from q (clipped to
+    the joint ranges, as every step, as the env clips its targets) toward the target:
+    position (G, 3) m and, unless None, quaternion (G, 4)."""
+    tcp = jnp.vectorize(nominal_chain().tcp, signature="(6)->(3),(4)")
+    lo, hi = (jnp.asarray(x, jnp.float32) for x in joint_ranges())
+
+    def step(q, _):
+        pos, quat = tcp(q)
+        err = None if target_quat is None else quat_mul(quat, quat_conj(target_quat))
+        dq = pose_step(q, pos - target_pos, err, wrap_last=err is not None)
+        return jnp.clip(q + dq, lo, hi), None
+
+    return jax.lax.scan(step, jnp.clip(q, lo, hi), None, length=steps)[0]

@@ -139,40 +139,6 @@ def start_postures(k: int) -> np.ndarray:
     return np.random.default_rng(0).uniform(0.8 * lo, 0.8 * hi, size=(k, 6)).astype(np.float32)
 
 
-def wrist_flip(q: jax.Array) -> jax.Array:
-    """(..., 6) rad -> the other wrist branch of the same tool pose: joints 4 and 6 half a
-    turn round (the way that stays within their +-pi ranges) and joint 5 mirrored. On
-    MARA's nominal chain the tool's orientation is the same to rounding and its position
-    1.6 mm away (the wrist's axes miss one point by that much), so a few IK steps from it
-    converge on that branch: restarted_landing's last resort where the own
-    landing is held at joint 4's stop short of the target (benchmarks/NOTES.md section 68)."""
-    half = jnp.float32(np.pi)
-    turn = lambda x: x - half * jnp.where(x < 0.0, -1.0, 1.0)  # noqa: E731
-    return jnp.stack([q[..., 0], q[..., 1], q[..., 2], turn(q[..., 3]), -q[..., 4],
-                      turn(q[..., 5])], axis=-1)  # fmt: skip
-
-
-def flipped_landing(q: jax.Array, target_pos: jax.Array, target_quat: Any) -> jax.Array:
-    """(G, 6) -> (G, 6): PLAN_START_STEPS imagined IK steps (`task_space.pose_step`, the
-    long way round for joint 6 where needed; joint targets clipped to the ranges, as the
-    env clips them) on the nominal arm from `wrist_flip(q)` toward the target (position
-    (G, 3) m and, unless None, quaternion (G, 4))."""
-    from mara_mjx.envs.geometry import quat_conj, quat_mul
-    from mara_mjx.envs.task_space import joint_ranges, nominal_chain, pose_step
-    from mara_mjx.ppo.parametrisation import PLAN_START_STEPS
-
-    tcp = jnp.vectorize(nominal_chain().tcp, signature="(6)->(3),(4)")
-    lo, hi = (jnp.asarray(x, jnp.float32) for x in joint_ranges())
-
-    def step(q, _):
-        pos, quat = tcp(q)
-        err = None if target_quat is None else quat_mul(quat, quat_conj(target_quat))
-        dq = pose_step(q, pos - target_pos, err, wrap_last=err is not None)
-        return jnp.clip(q + dq, lo, hi), None
-
-    return jax.lax.scan(step, jnp.clip(wrist_flip(q), lo, hi), None, length=PLAN_START_STEPS)[0]
-
-
 def landing_error(
     q: jax.Array, target_pos: jax.Array, target_quat: jax.Array, orientation: bool
 ) -> jax.Array:
@@ -279,7 +245,7 @@ def _restart_choice(
     one loop of PLAN_START_STEPS: on a GPU the decision's sequential depth; in ONNX one
     Loop), the shortest clear one within PLAN_KEEP_MM, else `own` -> (G, 6)."""
     from mara_mjx.envs.clearance import clearance
-    from mara_mjx.envs.task_space import nominal_chain
+    from mara_mjx.envs.task_space import ik_landing, nominal_chain, wrist_flip
     from mara_mjx.ppo.parametrisation import (
         PLAN_CLEAR_MM,
         PLAN_KEEP_MM,
@@ -318,10 +284,12 @@ def _restart_choice(
         best = jnp.where(better[..., None], lands[i], best)
         best_span = jnp.where(better, spans[i], best_span)
         found = found | better
-    # where none reaches: the own landing with its wrist turned over (`wrist_flip`), solved
-    # from there by the IK step alone (the network may steer back to the branch it
-    # prefers), apart from the K starts above, which so keep their shapes and bits
-    land = flipped_landing(own, target_pos, target_quat if orientation else None)
+    # where none reaches: the own landing's other wrist branch (`wrist_flip`: where the own
+    # one is held at joint 4's stop, benchmarks/NOTES.md section 68), solved from there by
+    # the IK step alone (the network may steer back to the branch it prefers), apart from
+    # the K starts above, which so keep their shapes and bits
+    land = ik_landing(wrist_flip(own), target_pos, target_quat if orientation else None,
+                      PLAN_START_STEPS)  # fmt: skip
     take = ~found & (landing_error(land, target_pos, target_quat, orientation) <= PLAN_KEEP_MM)
     take = take & (path_clearance(q0, land, PLAN_PATH_POINTS) >= need)
     return jnp.where(take[..., None], land, best)  # (own where nothing clear reaches)
