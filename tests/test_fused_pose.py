@@ -139,3 +139,28 @@ def test_pallas_kernel_lowers_to_triton_for_a_gpu(case):
     q = tuple(jax.ShapeDtypeStruct((4096,), jnp.float32) for _ in range(6))
     text = run.trace(q).lower(lowering_platforms=("cuda",)).as_text()
     assert text.count("__gpu$xla.gpu.triton") == 1 and "mosaic" not in text.lower()
+
+
+def test_the_fused_kinematics_steps_the_env_as_the_lean_pass_does():
+    # EnvConfig(kinematics="fused"): the batched train-driver step (vmap(env.step) with its
+    # auto-reset) through arm_pose, against the default 'lean', from the same states and
+    # actions: the same collisions and resets, observations to float32 rounding
+    from mara_mjx.bench.env import make_step_body
+    from mara_mjx.envs.batched import BatchedEnv
+
+    out = {}
+    for kin in ("lean", "fused"):
+        benv = BatchedEnv(mara_mjx.make("MARACollisionOrient", kinematics=kin), 64)
+        body = make_step_body(benv)
+        run = jax.jit(lambda s, k, b=body: jax.lax.scan(b, (s, k), None, length=40))
+        (state, _), collided = run(jax.jit(benv.reset)(jax.random.key(0)), jax.random.key(1))
+        out[kin] = state, np.asarray(collided)
+    (lean, hit_lean), (fused, hit_fused) = out["lean"], out["fused"]
+    assert hit_lean.max() > 0  # random targets collide: the bit is exercised
+    np.testing.assert_array_equal(hit_fused, hit_lean)
+    np.testing.assert_array_equal(np.asarray(fused.env_state.step), np.asarray(lean.env_state.step))
+    np.testing.assert_allclose(np.asarray(fused.obs), np.asarray(lean.obs), atol=1e-4)
+    with pytest.raises(ValueError, match="kinematics=.*choose among"):
+        from mara_mjx.bench.limit import LimitConfig
+
+        LimitConfig(kinematics=("fast",))

@@ -9,6 +9,7 @@ For the real driver, physics steps/s = env steps/s x substeps.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import statistics
 import time
 from typing import Any, ClassVar, Literal
@@ -35,6 +36,9 @@ class EnvStudyConfig(BenchConfig):
     """Env steps per timed call."""
     repeats: int = 5
     """Timed calls after the first."""
+    kinematics: tuple[Literal["lean", "fused", "mjx"], ...] = ("lean",)
+    """The arm's pose passes to measure (EnvConfig.kinematics): 'lean' (the default),
+    'fused' (its scalar form, fewer kernels) or 'mjx'."""
 
     QUICK: ClassVar[dict[str, Any]] = {"sizes": (4,), "real_sizes": (4,), "steps": 4, "repeats": 1}
     POSITIVE: ClassVar[tuple[str, ...]] = ("sizes", "real_sizes", "steps", "repeats")
@@ -42,6 +46,15 @@ class EnvStudyConfig(BenchConfig):
     def __post_init__(self):
         super().__post_init__()
         check_drivers(self.drivers)
+        check_kinematics(self.kinematics)
+
+
+def check_kinematics(kinematics: tuple[str, ...]) -> None:
+    from mara_mjx.envs.base import KINEMATICS
+
+    bad = [k for k in kinematics if k not in KINEMATICS]
+    if bad or not kinematics:
+        raise ValueError(f"kinematics={list(kinematics)} is not valid; choose among {KINEMATICS}")
 
 
 def check_drivers(drivers: tuple[str, ...]) -> None:
@@ -109,6 +122,7 @@ def time_env(
     return {
         "task": task,
         "driver": driver,
+        "kinematics": env.config.kinematics,
         "num_envs": num_envs,
         "steps_per_call": steps,
         "compile_s": max(first - median, 0.0),
@@ -125,10 +139,10 @@ def env_study(args: EnvStudyConfig) -> list[dict[str, Any]]:
     records = []
     for driver in args.drivers:
         sizes = args.sizes if driver == "train" else args.real_sizes
-        for task in args.tasks:
+        for task, kin in itertools.product(args.tasks, args.kinematics):
             for n in sizes:
                 try:
-                    rec = time_env(task, driver, n, args.steps, args.repeats)
+                    rec = time_env(task, driver, n, args.steps, args.repeats, kinematics=kin)
                 except Exception as e:  # out of memory at the top of a sweep ends it
                     if "RESOURCE_EXHAUSTED" not in str(e) and "out of memory" not in str(e):
                         raise
@@ -136,7 +150,7 @@ def env_study(args: EnvStudyConfig) -> list[dict[str, Any]]:
                     break
                 records.append(rec)
                 print(
-                    f"{task:20s} {driver:5s} n={n:>7d}"
+                    f"{task:20s} {driver:5s} {kin:5s} n={n:>7d}"
                     f"  {rec['env_steps_per_s'] / 1e6:9.3f} M steps/s"
                     f"  compile {rec['compile_s']:6.1f} s",
                     flush=True,
@@ -149,12 +163,13 @@ TABLE: dict[str, Any] = {
     "columns": [
         ("task", lambda r: r["task"]),
         ("driver", lambda r: r["driver"]),
+        ("kinematics", lambda r: r.get("kinematics", "lean")),
         ("envs", lambda r: f"{r['num_envs']:,}"),
         ("env steps/s", lambda r: fmt_m(r["env_steps_per_s"])),
         ("physics steps/s", lambda r: fmt_m(r["physics_steps_per_s"])),
         ("compile (s)", lambda r: f"{r['compile_s']:.1f}"),
     ],
-    "series": lambda r: f"{r['task']} ({r['driver']})",
+    "series": lambda r: f"{r['task']} ({r['driver']}, {r.get('kinematics', 'lean')})",
     "style": lambda r: "-" if r["driver"] == "train" else "--",
 }
 

@@ -31,6 +31,7 @@ Per (task, driver, environment count):
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import re
 import time
 from collections.abc import Callable
@@ -40,7 +41,7 @@ import jax
 import jax.numpy as jnp
 
 import mara_mjx
-from mara_mjx.bench.env import check_drivers
+from mara_mjx.bench.env import check_drivers, check_kinematics
 from mara_mjx.bench.runner import BenchConfig, Study
 from mara_mjx.envs.batched import BatchedEnv
 from mara_mjx.viz.plots import finish_figure
@@ -64,6 +65,9 @@ class LimitConfig(BenchConfig):
     """n of the n x n matmuls that measure peak FLOP/s."""
     copy_size: int = 2**29
     """float32 elements of the x + 1 that measures memory bandwidth."""
+    kinematics: tuple[Literal["lean", "fused", "mjx"], ...] = ("lean",)
+    """The arm's pose passes to measure (EnvConfig.kinematics): 'lean' (the default),
+    'fused' (its scalar form, fewer kernels) or 'mjx'."""
 
     QUICK: ClassVar[dict[str, Any]] = {
         "sizes": (4,),
@@ -85,6 +89,7 @@ class LimitConfig(BenchConfig):
     def __post_init__(self):
         super().__post_init__()
         check_drivers(self.drivers)
+        check_kinematics(self.kinematics)
 
 
 def _best_time(fn: Callable[..., Any], args: tuple, repeats: int) -> float:
@@ -118,12 +123,12 @@ def measure_ceilings(matmul_size: int, copy_size: int, repeats: int) -> dict[str
     return out
 
 
-def step_cost(task: str, driver: str, num_envs: int) -> dict[str, Any]:
+def step_cost(task: str, driver: str, num_envs: int, kinematics: str = "lean") -> dict[str, Any]:
     """XLA's cost analysis of one batched random-target env step (the env study's scan
     body), per env; plus the known trip counts of the module's while loops."""
     from mara_mjx.bench.env import make_step_body
 
-    env = mara_mjx.make(task, driver=driver)
+    env = mara_mjx.make(task, driver=driver, kinematics=kinematics)
     benv = BatchedEnv(env, num_envs)
     state = jax.jit(benv.reset)(jax.random.key(0))
     body = make_step_body(benv)
@@ -158,28 +163,30 @@ def limit_study(args: LimitConfig) -> list[dict[str, Any]]:
         flush=True,
     )
     records = []
-    train_costs: dict[tuple[str, int], dict[str, Any]] = {}
+    train_costs: dict[tuple[str, str, int], dict[str, Any]] = {}
     for driver in args.drivers:
         sizes = args.sizes if driver == "train" else args.real_sizes
-        for task in args.tasks:
+        for task, kin in itertools.product(args.tasks, args.kinematics):
             for n in sizes:
-                cost = step_cost(task, driver, n)
+                cost = step_cost(task, driver, n, kin)
                 counted = {"flops": cost["flops"], "bytes": cost["bytes"]}
                 if driver == "real":
-                    if (task, n) not in train_costs:
-                        train_costs[task, n] = step_cost(task, "train", n)
-                    base, k = train_costs[task, n], cost["substeps"]
+                    if (task, kin, n) not in train_costs:
+                        train_costs[task, kin, n] = step_cost(task, "train", n, kin)
+                    base, k = train_costs[task, kin, n], cost["substeps"]
                     est = {q: base[q] + k * (cost[q] - base[q]) for q in ("flops", "bytes")}
                 else:
-                    train_costs[task, n] = cost
+                    train_costs[task, kin, n] = cost
                     est = counted
-                measured = time_env(task, driver, n, args.steps, args.repeats)
+                measured = time_env(task, driver, n, args.steps, args.repeats, kinematics=kin)
                 records.append(roofline(task, driver, n, cost, est, ceilings, measured))
                 r = records[-1]
+                r["kinematics"] = kin
                 bound, sps = r["bound_env_steps_per_s"] / 1e6, r["env_steps_per_s"] / 1e6
                 print(
-                    f"{task:20s} {driver:5s} n={n:>7d}  {r['flops_per_env_step']:,.0f} FLOP"
-                    f"  {r['bytes_per_env_step']:,.0f} B  bound {bound:.2f} M/s"
+                    f"{task:20s} {driver:5s} {kin:5s} n={n:>7d}"
+                    f"  {r['flops_per_env_step']:,.0f} FLOP  {r['bytes_per_env_step']:,.0f} B"
+                    f"  bound {bound:.2f} M/s"
                     f" ({r['limited_by']})  measured {sps:.3f} M/s"
                     f"  = {100 * r['fraction_of_bound']:.1f}%",
                     flush=True,
@@ -274,6 +281,7 @@ LIMIT_TABLE: dict[str, Any] = {
     "columns": [
         ("task", lambda r: r["task"]),
         ("driver", lambda r: r["driver"]),
+        ("kinematics", lambda r: r.get("kinematics", "lean")),
         ("envs", lambda r: f"{r['num_envs']:,}"),
         ("FLOP / env step", lambda r: f"{r['flops_per_env_step']:,.0f}"),
         ("bytes / env step", lambda r: f"{r['bytes_per_env_step']:,.0f}"),

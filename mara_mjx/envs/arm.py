@@ -56,6 +56,7 @@ import mujoco
 import numpy as np
 
 from mara_mjx.envs.dynamics import Dynamics
+from mara_mjx.envs.fused_pose import arm_pose
 from mara_mjx.envs.geometry import quat_canonical
 from mara_mjx.envs.lean import LeanArm
 from mara_mjx.envs.pose import ArmPose
@@ -213,9 +214,12 @@ class Arm:
 
     # ---------------------------------------------------------------- drivers
     def pose_with(self, q: jax.Array, kinematics: str, collide: bool = True) -> ArmPose:
-        """`pose(q, collide)` through MJX ('mjx') or the lean pass ('lean', envs/lean.py)."""
+        """`pose(q, collide)` through MJX ('mjx'), the lean pass ('lean', envs/lean.py) or
+        its scalar form ('fused', envs/fused_pose.py)."""
         if kinematics == "lean":
             return self.lean.pose(q, collide)
+        if kinematics == "fused":
+            return arm_pose(self.lean, q, collide)
         return self.pose(q, collide)
 
     @functools.cached_property
@@ -263,7 +267,7 @@ class Arm:
         reads its masses, gains, ... from `model`) or 'mjx' (`pose` and `mjx.step`).
         """
         physical = contacts == "physical"
-        lean = not physical and kinematics == "lean"
+        lean = not physical and kinematics in ("lean", "fused")
         model = self.dynamics_model(contacts) if model is None else model
         max_move = velocity * self.timestep
 

@@ -82,7 +82,7 @@ class Env(Protocol):
 
 
 DRIVERS = ("train", "real")
-KINEMATICS = ("mjx", "lean")
+KINEMATICS = ("mjx", "lean", "fused")
 REAL_CONTACTS = ("detect", "physical")
 DEFAULT_TARGET_POS = (-0.40028, 0.095615, 0.72466)
 DEFAULT_TARGET_QUAT = (0.0, 0.7071068, 0.7071068, 0.0)
@@ -122,7 +122,7 @@ class EnvConfig:
     driver: Literal["train", "real"] = "train"
     """'train': joints reach commands at once (kinematics + collision only, the paper's
     training driver). 'real': velocity-limited position servos and MJX dynamics."""
-    kinematics: Literal["mjx", "lean"] = "lean"
+    kinematics: Literal["mjx", "lean", "fused"] = "lean"
     """Plain jnp or MJX for the arm's mechanics. 'lean' (the default): each pose and
     collision bit from the chain's six transforms and the 24 pairs' exact signed
     distances (mara_mjx/envs/lean.py; TCP pose within 1e-6 m of MJX's, collision flags
@@ -131,8 +131,12 @@ class EnvConfig:
     benchmarks/NOTES.md section 17), and the real driver's dynamics with
     real_contacts='detect' from mara_mjx/envs/dynamics.py (mjx.step's to float32
     rounding, tests/test_dynamics.py; no while loop or scatter). 'mjx': `mjx.kinematics`
-    + `mjx.collision`, and `mjx.step`, the reference. With real_contacts='physical' the
-    real driver is MJX's whatever this says."""
+    + `mjx.collision`, and `mjx.step`, the reference. 'fused': the lean pass's maths
+    written per scalar of the batch (mara_mjx/envs/fused_pose.py), which XLA fuses into a
+    few kernels (the pose pass 12x faster on an H100, a longer compile; benchmarks/NOTES.md
+    section 68): the same numbers as 'lean' to float32 rounding, not the same bits, so
+    not the default, whose learning rows were measured with 'lean'. With
+    real_contacts='physical' the real driver is MJX's whatever this says."""
     real_contacts: Literal["detect", "physical"] = "detect"
     """Real driver: how contacts enter the dynamics. 'detect' (the default): detected,
     not solved. The dynamics leave contacts out (joint limits, and the randomised

@@ -48,6 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mara_mjx.envs.lean import LeanArm
+from mara_mjx.envs.pose import ArmPose
 
 INF = math.inf
 
@@ -325,6 +326,15 @@ def soa_pose(lean: LeanArm, q, *, collide: bool = True, jac: bool = False):
         return out
     cols = [_cross(axis_w, _vsub(tcp, anchor_w)) for _, _, axis_w, anchor_w in frames]
     return (*out, tuple(tuple(_full(c[i], q[0]) for c in cols) for i in range(3)))
+
+
+def arm_pose(lean: LeanArm, q: jax.Array, collide: bool = True) -> ArmPose:
+    """`LeanArm.pose(q, collide)` through soa_pose: q (..., 6), any leading shape (one
+    env, or a batch under vmap, where every op stays elementwise over the batch) ->
+    ArmPose (the EnvConfig kinematics 'fused')."""
+    tcp, quat, hit, jac = soa_pose(lean, [q[..., i] for i in range(6)], collide=collide, jac=True)
+    rows = [jnp.stack(row, axis=-1) for row in jac]
+    return ArmPose(jnp.stack(tcp, -1), jnp.stack(quat, -1), jnp.stack(rows, -2), hit)
 
 
 def fused_pose(
