@@ -56,6 +56,14 @@ tta_seeds() {  # COUNTS...: issue 35's `tta --parts seeds` on MARACollisionOrien
   echo "tta_seeds DONE $?" >> /tmp/res/studies.log
   pack tta_seeds
 }
+fused_limit() {  # issue 35: the train-driver env step with kinematics lean and fused against
+  # the device's ceilings (`benchmark limit`, MARACollisionOrient; QUICK=1 tiny), packed
+  python -m mara_mjx.benchmark limit --tasks MARACollisionOrient --drivers train \
+    --kinematics lean fused $([ -n "$QUICK" ] && echo --quick || echo --sizes 65536 262144 1048576) \
+    --out /tmp/res/fused_limit > /tmp/res/fused_limit.log 2>&1
+  echo "fused_limit DONE $?" >> /tmp/res/studies.log
+  pack fused_limit
+}
 pack() {
   tar czf /tmp/res/$1.tgz.part -C /tmp/res $(cd /tmp/res && ls -d $1 $1.log 2>/dev/null) && mv /tmp/res/$1.tgz.part /tmp/res/$1.tgz
 }

@@ -31,9 +31,12 @@ one() {  # NAME TASK OFFSET RECIPE: one study of 16 seeds, its checkpoints kept
 #                                   1,150 s on an H100; poll with SNAP=/tmp/work/dt_MARACollisionOrient)
 #   tta_seeds                       issue 35: `benchmark tta --parts seeds` on MARACollisionOrient,
 #                                   16 seeds in one program cold and warm (PPO env steps/s, bits)
+#   mcort_fix                       MARACollisionOrientRandomTarget's CLI default on fresh
+#                                   1648-1663 with the restarts' last resort (section 68)
+#   fused_limit                     issue 35: `benchmark limit --kinematics lean fused` (section 68)
 #   (MCORT_FIRST=1, as before: mcort first)
-# e.g. the next lease, by value: STUDIES="mcort tta_seeds plan_mao" (section 67 ran the first two of
-# "distill_mco plan_mco plan_mao mcort")
+# e.g. the next lease, by value: STUDIES="mcort_fix fused_limit" (section 68 ran
+# "mcort tta_seeds plan_mao"; section 67 the first two of "distill_mco plan_mco plan_mao mcort")
 plan="orient_first_noisy_starts --plan_steps 16 --plan_starts 16"
 default="noise_mco noise_mao noise_1584 mcort"
 [ -n "$MCORT_FIRST" ] && default="mcort noise_mco noise_mao noise_1584"
@@ -48,6 +51,8 @@ for s in ${STUDIES:-$default}; do
     plan_mco) one plan_mco_1632 MARACollisionOrient 1632 "$plan" ;;
     plan_mao) one plan_mao_1632 MARAOrient 1632 "$plan" ;;
     tta_seeds) tta_seeds 16 ;;
+    mcort_fix) one mcort_1648 MARACollisionOrientRandomTarget 1648 cli ;;
+    fused_limit) fused_limit ;;
     *) echo "unknown study $s" >> /tmp/res/studies.log ;;
   esac
 done
