@@ -198,8 +198,9 @@ class PolicyConfig(_ConfigMixin):
     decision: uniform within 0.8 x the joint ranges, numpy's default_rng(0), so the first
     K of a larger set are the K of a smaller one), and commands, of the landings within
     PLAN_KEEP_MM that keep PLAN_CLEAR_MM from every contact on the servos' path to them,
-    the one with the shortest path (the smallest largest joint move); where none is, its
-    own. A trained policy can
+    the one with the shortest path (the smallest largest joint move); where none is, the
+    other wrist branch of its own landing solved by the IK step alone, if that reaches
+    and is clear so; else its own. A trained policy can
     lead the arm onto a branch where the wrist stops at its limit short of a pose near the
     region's edge, and stay there (a fixed point of the policy: the random-target tasks'
     training misses, benchmarks/NOTES.md section 43); from another start the same policy

@@ -186,8 +186,10 @@ def restarted_landing(act: Any, obs: jax.Array, steps: int, starts: int) -> jax.
     within PLAN_KEEP_MM whose servos' path from the observed joints keeps PLAN_CLEAR_MM
     from every contact (or the clearance the arm has now, where that is less;
     `path_clearance` at PLAN_PATH_POINTS points), the one with the shortest path (the
-    smallest largest joint move); else the own landing (errors: `landing_error`, with the
-    orientation where `obs` has one).
+    smallest largest joint move); else, where it reaches and is clear so, the own landing's
+    other wrist branch solved by the IK step alone (`task_space.wrist_flip`, `ik_landing`);
+    else the own landing (errors: `landing_error`, with the orientation where `obs` has
+    one).
 
     Only the rows whose own landing misses are restarted, PLAN_RESTART_GROUP of them at a
     time (fewer where the batch is smaller), in a while loop that ends when none is left
@@ -243,7 +245,8 @@ def _restart_choice(
     (G, 6) miss: the K = `starts` restarts' landings imagined side by
     side (the K starting postures stacked in front of the group and flattened into it,
     one loop of PLAN_START_STEPS: on a GPU the decision's sequential depth; in ONNX one
-    Loop), the shortest clear one within PLAN_KEEP_MM, else `own` -> (G, 6)."""
+    Loop), the shortest clear one within PLAN_KEEP_MM, else the last resort (the other
+    wrist branch), else `own` -> (G, 6)."""
     from mara_mjx.envs.clearance import clearance
     from mara_mjx.envs.task_space import ik_landing, nominal_chain, wrist_flip
     from mara_mjx.ppo.parametrisation import (
