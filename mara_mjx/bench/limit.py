@@ -181,7 +181,6 @@ def limit_study(args: LimitConfig) -> list[dict[str, Any]]:
                 measured = time_env(task, driver, n, args.steps, args.repeats, kinematics=kin)
                 records.append(roofline(task, driver, n, cost, est, ceilings, measured))
                 r = records[-1]
-                r["kinematics"] = kin
                 bound, sps = r["bound_env_steps_per_s"] / 1e6, r["env_steps_per_s"] / 1e6
                 print(
                     f"{task:20s} {driver:5s} {kin:5s} n={n:>7d}"
@@ -212,6 +211,7 @@ def roofline(
     return {
         "task": task,
         "driver": driver,
+        "kinematics": measured["kinematics"],
         "num_envs": num_envs,
         "substeps": cost["substeps"],
         "flops_per_env_step": flops,
