@@ -27,7 +27,9 @@ block_until_ready. The collided bits of all variants on the first size's batch (
 in the joint box) are compared with `lean`'s; disagreements are counted, and those where
 the smallest signed pair distance is within 1e-6 m of 0 (float32 rounding can flip them)
 apart.
-Everything goes to `--out` (JSON) and a table.
+Everything goes to `--out` (JSON, rewritten after every row, so a run cut short keeps its
+finished rows; a file other than this script's own earlier report is replaced only with
+`--overwrite`) and a table.
 """
 
 from __future__ import annotations
@@ -179,7 +181,15 @@ def main() -> None:
     p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="runs/fused_pose.json")
+    p.add_argument("--overwrite", action="store_true", help="--out may replace any file")
     args = p.parse_args()
+    from mara_mjx.cli.common import UserError
+    from mara_mjx.runtime import files, outputs
+
+    try:  # a new file or this script's own earlier output, checked before the work
+        outputs.check_output(args.out, "--out report", _ours, args.overwrite)
+    except UserError as e:
+        raise SystemExit(f"error: {e}") from None
 
     env = mara_mjx.make("MARACollisionOrient", driver="train")
     lean = LeanArm.from_model(env.arm.mj_model)
@@ -187,7 +197,7 @@ def main() -> None:
     interpret = device.platform == "cpu"
     fns = pose_fns(lean, args.block, interpret, args.num_warps)
     out = {
-        "command": "python " + " ".join(sys.argv),
+        "command": "python benchmarks/fused_pose_bench.py " + " ".join(sys.argv[1:]),
         "jax": jax.__version__,
         "jaxlib": version("jaxlib"),
         "device": str(device),
@@ -225,6 +235,7 @@ def main() -> None:
                 print(f"{n:8d} {name:11s} skipped: {out['skipped'][name][:200]}", flush=True)
                 continue
             rows[name] = row
+            files.write_atomic(args.out, json.dumps(out, indent=1))  # a cut run keeps its rows
             ok += [name] if name not in ok else []
             print(f"{n:8d} {name:11s} {row['poses_per_s'] / 1e6:9.3f} {row['call_s'] * 1e3:8.2f}"
                   f" {row['compile_s']:9.1f} {row['flops_per_pose']:9.0f}"
@@ -238,10 +249,20 @@ def main() -> None:
         print(f"\ncollided vs lean on {n} configurations: " + ", ".join(
             f"{k} {v['collided_disagreements']} ({v['of_them_within_1e-6_m']} within 1e-6 m)"
             for k, v in out["agreement"].items() if isinstance(v, dict)))  # fmt: skip
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump(out, f, indent=1)
+    files.write_atomic(args.out, json.dumps(out, indent=1))
     print(f"wrote {args.out}")
+
+
+def _ours(path: Path) -> bool:
+    """An earlier --out report of this script (replaced; anything else is refused)."""
+    try:
+        return (
+            json.loads(path.read_text())
+            .get("command", "")
+            .startswith("python benchmarks/fused_pose_bench.py")
+        )
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 if __name__ == "__main__":
