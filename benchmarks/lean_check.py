@@ -1,10 +1,13 @@
 """The lean train-driver pass (mara_mjx/envs/lean.py) against MJX and C MuJoCo, and its speed.
 
     python benchmarks/lean_check.py check --random 100000 --near 100000 --out lean_check.json
+    python benchmarks/lean_check.py check --kinematics fused --out fused_check.json
     python benchmarks/lean_check.py time --envs 65536 --steps 100      # on a GPU
 
-`check`: random configurations inside the joint limits, and near-contact ones (bisection
-along the segment from a free to a colliding configuration, by the lean pass's own flag,
+`check`: the pass `--kinematics` names, the lean pass ('lean', as `LeanArm.pose`) or its
+scalar form ('fused', `fused_pose.arm_pose`; the JSON's keys then say `fused_` where they
+say `lean_`), on random configurations inside the joint limits, and near-contact ones
+(bisection along the segment from a free to a colliding configuration, by the pass's own flag,
 to 1e-7 of its length, then a random joint offset of up to `--offset` rad). For each:
 TCP position, flange quaternion and positional Jacobian against `mjx.kinematics`; the
 collided flag of the lean pass, of MJX (`Arm.pose`) and of C MuJoCo (`mj_collision`, any
@@ -24,6 +27,7 @@ median of 5 timed calls (env steps/s).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 import time
@@ -76,13 +80,16 @@ def reference_flags(lean, qs: np.ndarray, samples: int = 20001) -> np.ndarray:
 
 def check(args) -> dict:
     from mara_mjx.envs.arm import Arm
+    from mara_mjx.envs.fused_pose import arm_pose
     from mara_mjx.envs.lean import LeanArm
 
     arm = Arm()
     lean = LeanArm.from_model(arm.mj_model)
+    tested = lean.pose if args.kinematics == "lean" else functools.partial(arm_pose, lean)
+    k = args.kinematics
     mjx_pose = jax.jit(jax.vmap(arm.pose))
-    lean_pose = jax.jit(jax.vmap(lean.pose))
-    lean_flag = jax.jit(jax.vmap(lambda q: lean.pose(q).collided))
+    lean_pose = jax.jit(jax.vmap(tested))
+    lean_flag = jax.jit(jax.vmap(lambda q: tested(q).collided))
     rng = np.random.default_rng(args.seed)
     sets = {"random": rng.uniform(arm.lower, arm.upper, (args.random, 6)).astype(np.float32)}
     # near contact: pairs of a free and a colliding random configuration, bisected
@@ -105,20 +112,20 @@ def check(args) -> dict:
         mjx_flag, lean_f = np.asarray(a.collided), np.asarray(b.collided)
         band = np.digitize(np.abs(c_dist), BANDS) - 1
         rows = {}
-        for k in range(len(BANDS) - 1):
-            sel = band == k
-            rows[f"|d| {BANDS[k]:g}-{BANDS[k + 1]:g} m"] = {
+        for j in range(len(BANDS) - 1):
+            sel = band == j
+            rows[f"|d| {BANDS[j]:g}-{BANDS[j + 1]:g} m"] = {
                 "configurations": int(sel.sum()),
-                "lean_vs_c_mismatch": int((lean_f[sel] != c_flag[sel]).sum()),
+                f"{k}_vs_c_mismatch": int((lean_f[sel] != c_flag[sel]).sum()),
                 "mjx_vs_c_mismatch": int((mjx_flag[sel] != c_flag[sel]).sum()),
-                "lean_vs_mjx_mismatch": int((lean_f[sel] != mjx_flag[sel]).sum()),
+                f"{k}_vs_mjx_mismatch": int((lean_f[sel] != mjx_flag[sel]).sum()),
             }
         disagree = np.where(lean_f != c_flag)[0]
         ref = reference_flags(lean, qs[disagree])
         out[name] = {
             "configurations": len(qs),
-            "lean_vs_c_disagreements": len(disagree),
-            "of_them_lean_agrees_with_the_float64_reference": int((ref == lean_f[disagree]).sum()),
+            f"{k}_vs_c_disagreements": len(disagree),
+            f"of_them_{k}_agrees_with_the_float64_reference": int((ref == lean_f[disagree]).sum()),
             "of_them_c_says_free_where_the_reference_finds_penetration": int(
                 (ref & ~c_flag[disagree]).sum()
             ),
@@ -170,6 +177,7 @@ def timing(args) -> dict:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("mode", choices=("check", "time"))
+    p.add_argument("--kinematics", choices=("lean", "fused"), default="lean")
     p.add_argument("--random", type=int, default=100_000)
     p.add_argument("--near", type=int, default=100_000)
     p.add_argument("--offset", type=float, default=1e-4, help="rad, near-contact jitter")
@@ -177,11 +185,28 @@ def main() -> None:
     p.add_argument("--envs", type=int, default=65536)
     p.add_argument("--steps", type=int, default=100)
     p.add_argument("--out", default="")
+    p.add_argument("--overwrite", action="store_true", help="--out may replace any file")
     args = p.parse_args()
+    from mara_mjx.cli.common import UserError
+    from mara_mjx.runtime import files, outputs
+
+    try:  # a new file or this script's own earlier output, checked before the work
+        if args.out:
+            outputs.check_output(args.out, "--out report", _ours, args.overwrite)
+    except UserError as e:
+        raise SystemExit(f"error: {e}") from None
     out = check(args) if args.mode == "check" else timing(args)
     if args.out:
-        with open(args.out, "w") as f:
-            json.dump(out, f, indent=1)
+        files.write_atomic(args.out, json.dumps(out, indent=1))
+
+
+def _ours(path) -> bool:
+    """An earlier --out report of this script (replaced; anything else is refused)."""
+    try:
+        with open(path) as f:
+            return "benchmarks/lean_check.py" in json.load(f).get("command", "")
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 if __name__ == "__main__":

@@ -1,18 +1,23 @@
 """Where the time of one batched train-driver step goes (GPU profiling aid).
 
-Times, at each size, under vmap + lax.scan with random joint positions:
-  kinematics   mjx.kinematics only
-  pose         kinematics + mjx.collision over the listed pairs (Arm.pose)
-  env.step     the task step (pose + observation + reward + reset rules), no auto-reset
-  batched      BatchedEnv.step (env.step + auto-reset + episode statistics), the
-               default "select" reset strategy
-  batched_cond the same with reset_strategy="cond"
-  batched_v0   the first version, for before/after in one run: "cond" strategy and a
-               reset that also ran collision detection
+Times, at each size, under vmap + lax.scan with random joint targets drawn inside the
+scan (the `env` study's harness), each stage compiled apart (`compile_s`) and timed as the
+median of `--repeats` calls after a warm-up:
+  draws         the harness alone: the uniform random joint targets, summed
+  pose          draws + the pose pass with collision (Arm.pose_with, `--kinematics`)
+  env.step      the task step (pose + observation + reward + reset rules), no auto-reset
+  batched       BatchedEnv.step (env.step + auto-reset + episode statistics), the
+                default "select" reset strategy: a reset computed for every env each step
+  batched_cond  the same with reset_strategy="cond": the reset only on steps where an
+                episode ended (the tasks truncate every env together)
+and each stage's kernels (the launching instructions of its optimised module, the scan's
+body counted once: `mara_mjx.bench.limit.kernel_count`).
 
-    python benchmarks/profile_step.py --task MARACollisionOrient --sizes 16384 65536
+    python benchmarks/profile_step.py --task MARACollisionOrient --kinematics fused \
+        --sizes 262144 1048576 --out runs/profile_step.json
 
-Writes JSON to --out (default benchmarks/results/profile_step.json).
+Writes JSON to --out after every stage (a new file, or this script's own earlier report;
+`--overwrite` to replace anything else).
 """
 
 from __future__ import annotations
@@ -20,112 +25,122 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import sys
 import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-from mujoco import mjx
 
 import mara_mjx
+from mara_mjx.bench.limit import kernel_count
 from mara_mjx.bench.runner import device_info, versions
+from mara_mjx.envs.base import KINEMATICS
 from mara_mjx.envs.batched import BatchedEnv
 
-
-class FullPoseReset:
-    """The env with the first version's reset (kinematics + collision)."""
-
-    def __init__(self, env):
-        self._env = env
-
-    def __getattr__(self, name):
-        return getattr(self._env, name)
-
-    def reset(self, key, params=None):
-        arm = self._env.arm
-        pose = arm.pose
-        arm.pose = lambda q, collide=True: pose(q, True)
-        try:
-            return self._env.reset(key, params)
-        finally:
-            arm.pose = pose
+COMMAND = "python benchmarks/profile_step.py"
 
 
-def timed(fn, *args, repeats=5):
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(fn(*args))
-    first = time.perf_counter() - t0
+def timed(fn, *args, repeats=5) -> float:
+    """The median wall-clock of `repeats` calls after a warm-up call."""
+    jax.block_until_ready(fn(*args))
     ts = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        out = jax.block_until_ready(fn(*args))
+        jax.block_until_ready(fn(*args))
         ts.append(time.perf_counter() - t0)
-    return first, statistics.median(ts), out
+    return statistics.median(ts)
+
+
+def stages(env, n: int, steps: int) -> dict:
+    """name -> (a jitted scan of `steps` steps: (x, key) -> (x, key), its first x)."""
+    arm, kin = env.arm, env.config.kinematics
+    lo, hi = jnp.asarray(env.joint_lower), jnp.asarray(env.joint_upper)
+
+    def scan(stage):
+        def body(carry, _):
+            x, key = carry
+            key, k = jax.random.split(key)
+            a = jax.random.uniform(k, (n, 6), minval=lo, maxval=hi)
+            return (stage(x, a), key), None
+
+        return jax.jit(lambda x, key: jax.lax.scan(body, (x, key), None, length=steps)[0])
+
+    def pose(x, a):
+        ps = jax.vmap(lambda q: arm.pose_with(q, kin))(a)
+        return x + ps.tcp_pos.sum() + ps.collided.sum()
+
+    benv = BatchedEnv(env, n)
+    benv_cond = BatchedEnv(env, n, reset_strategy="cond")
+    states = jax.vmap(env.reset)(jax.random.split(jax.random.key(0), n))
+    bstate = benv.reset(jax.random.key(0))
+    return {
+        "draws": (scan(lambda x, a: x + a.sum()), jnp.zeros(())),
+        "pose": (scan(pose), jnp.zeros(())),
+        "env.step": (scan(jax.vmap(env.step)), states),
+        "batched": (scan(benv.step), bstate),
+        "batched_cond": (scan(benv_cond.step), bstate),
+    }
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--task", default="MARACollisionOrient")
+    p.add_argument("--kinematics", default="lean", choices=KINEMATICS)
     p.add_argument("--sizes", nargs="+", type=int, default=[16384, 65536])
     p.add_argument("--steps", type=int, default=100)
-    p.add_argument("--out", type=Path, default=Path("benchmarks/results/profile_step.json"))
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--out", type=Path, default=Path("runs/profile_step.json"))
+    p.add_argument("--overwrite", action="store_true", help="--out may replace any file")
     args = p.parse_args()
-    env = mara_mjx.make(args.task)
-    arm = env.arm
-    lo, hi = jnp.asarray(env.joint_lower), jnp.asarray(env.joint_upper)
-    records = []
+    from mara_mjx.cli.common import UserError
+    from mara_mjx.runtime import files, outputs
+
+    try:  # a new file or this script's own earlier output, checked before the work
+        outputs.check_output(args.out, "--out report", _ours, args.overwrite)
+    except UserError as e:
+        raise SystemExit(f"error: {e}") from None
+    env = mara_mjx.make(args.task, kinematics=args.kinematics)
+    out = {
+        "command": f"{COMMAND} " + " ".join(sys.argv[1:]),
+        "device": device_info(),
+        "versions": versions(),
+        "records": [],
+    }
     for n in args.sizes:
-        benv = BatchedEnv(env, n)
-        benv_cond = BatchedEnv(env, n, reset_strategy="cond")
-        benv_v0 = BatchedEnv(FullPoseReset(env), n, reset_strategy="cond")
-
-        def scan(stage):
-            def body(carry, _):
-                x, key = carry
-                key, k = jax.random.split(key)
-                a = jax.random.uniform(k, (n, 6), minval=lo, maxval=hi)
-                x, out = stage(x, a)
-                return (x, key), out
-
-            return jax.jit(lambda x, key: jax.lax.scan(body, (x, key), None, length=args.steps)[0])
-
-        def kin(x, a):
-            d = jax.vmap(lambda q: mjx.kinematics(arm.mjx_model, arm._data0.replace(qpos=q)))(a)
-            return x + d.site_xpos[:, arm.tcp_site].sum(), None
-
-        def pose(x, a):
-            ps = jax.vmap(arm.pose)(a)
-            return x + ps.tcp_pos.sum() + ps.collided.sum(), None
-
-        states = jax.vmap(env.reset)(jax.random.split(jax.random.key(0), n))
-        bstate = benv.reset(jax.random.key(0))
-        stages = {
-            "kinematics": (scan(kin), jnp.zeros(())),
-            "pose": (scan(pose), jnp.zeros(())),
-            "env.step": (scan(lambda s, a: (jax.vmap(env.step)(s, a), None)), states),
-            "batched": (scan(lambda s, a: (benv.step(s, a), None)), bstate),
-            "batched_cond": (scan(lambda s, a: (benv_cond.step(s, a), None)), bstate),
-            "batched_v0": (scan(lambda s, a: (benv_v0.step(s, a), None)), bstate),
-        }
-        for name, (fn, x0) in stages.items():
-            first, med, _ = timed(fn, x0, jax.random.key(1))
+        for name, (fn, x0) in stages(env, n, args.steps).items():
+            key = jax.random.key(1)
+            t0 = time.perf_counter()
+            compiled = fn.lower(x0, key).compile()
+            compile_s = time.perf_counter() - t0
+            kernels = kernel_count(compiled.as_text())
+            med = timed(compiled, x0, key, repeats=args.repeats)
             rec = {
                 "task": args.task,
+                "kinematics": args.kinematics,
                 "stage": name,
                 "num_envs": n,
-                "compile_s": first - med,
+                "kernels": kernels,
+                "compile_s": compile_s,
+                "step_us": 1e6 * med / args.steps,
                 "steps_per_s": n * args.steps / med,
             }
-            records.append(rec)
+            out["records"].append(rec)
+            files.write_atomic(args.out, json.dumps(out, indent=1))  # a cut run keeps its rows
             print(
-                f"n={n:>6d} {name:12s} {rec['steps_per_s'] / 1e6:8.2f} M/s"
+                f"n={n:>8d} {name:12s} {rec['steps_per_s'] / 1e6:9.2f} M/s"
+                f"  {rec['step_us']:8.1f} us/step  {kernels:4d} kernels"
                 f"  compile {rec['compile_s']:.1f} s",
                 flush=True,
             )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(
-        json.dumps({"device": device_info(), "versions": versions(), "records": records}, indent=2)
-    )
+
+
+def _ours(path: Path) -> bool:
+    """An earlier --out report of this script (replaced; anything else is refused)."""
+    try:
+        return json.loads(path.read_text()).get("command", "").startswith(COMMAND)
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 if __name__ == "__main__":

@@ -164,3 +164,18 @@ def test_the_fused_kinematics_steps_the_env_as_the_lean_pass_does():
         from mara_mjx.bench.limit import LimitConfig
 
         LimitConfig(kinematics=("fast",))
+
+
+def test_the_bench_counts_kernels_and_checks_reset_strategies():
+    # `benchmark limit`'s kernel count: the launching instructions outside fused computations;
+    # an elementwise chain is one fusion, and a reduction after it adds at least one more
+    from mara_mjx.bench.limit import LimitConfig, kernel_count
+
+    x = jnp.ones(64)
+    one = kernel_count(jax.jit(lambda x: jnp.sin(x) * 2 + 1).lower(x).compile().as_text())
+    more = kernel_count(
+        jax.jit(lambda x: jnp.sin(x) * jnp.sum(jnp.cos(x) ** 2)).lower(x).compile().as_text()
+    )
+    assert one >= 1 and more > one
+    with pytest.raises(ValueError, match="reset_strategies=.*choose among"):
+        LimitConfig(reset_strategies=("lazy",))

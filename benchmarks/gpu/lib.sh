@@ -64,6 +64,20 @@ fused_limit() {  # issue 35: the train-driver env step with kinematics lean and 
   echo "fused_limit DONE $?" >> /tmp/res/studies.log
   pack fused_limit
 }
+fused_profile() {  # issue 35: where the fused step's time goes (benchmarks/profile_step.py,
+  # fused and lean) and `benchmark limit` with the reset strategies select and cond; packed
+  local q="--sizes 262144 1048576" o=/tmp/res/fused_profile
+  [ -n "$QUICK" ] && q="--sizes 64 --steps 4 --repeats 1"
+  mkdir -p $o
+  { python benchmarks/profile_step.py --kinematics fused $q --out $o/profile_fused.json
+    python benchmarks/profile_step.py --kinematics lean ${q/ 1048576/} --out $o/profile_lean.json
+    python -m mara_mjx.benchmark limit --tasks MARACollisionOrient --drivers train \
+      --kinematics fused --reset_strategies select cond \
+      $([ -n "$QUICK" ] && echo --quick || echo --sizes 262144 1048576) --out $o
+  } > /tmp/res/fused_profile.log 2>&1
+  echo "fused_profile DONE $?" >> /tmp/res/studies.log
+  pack fused_profile
+}
 pack() {
   tar czf /tmp/res/$1.tgz.part -C /tmp/res $(cd /tmp/res && ls -d $1 $1.log 2>/dev/null) && mv /tmp/res/$1.tgz.part /tmp/res/$1.tgz
 }

@@ -34,6 +34,8 @@ one() {  # NAME TASK OFFSET RECIPE: one study of 16 seeds, its checkpoints kept
 #   mcort_fix                       MARACollisionOrientRandomTarget's CLI default on fresh
 #                                   1648-1663 with the restarts' last resort (section 68)
 #   fused_limit                     issue 35: `benchmark limit --kinematics lean fused` (section 68)
+#   fused_profile                   issue 35: where the fused step's time goes, and the reset
+#                                   strategies select and cond (section 69; about 5 minutes)
 #   (MCORT_FIRST=1, as before: mcort first)
 # e.g. the next lease, by value: STUDIES="mcort_fix fused_limit" (section 68 ran
 # "mcort tta_seeds plan_mao"; section 67 the first two of "distill_mco plan_mco plan_mao mcort")
@@ -53,6 +55,7 @@ for s in ${STUDIES:-$default}; do
     tta_seeds) tta_seeds 16 ;;
     mcort_fix) one mcort_1648 MARACollisionOrientRandomTarget 1648 cli ;;
     fused_limit) fused_limit ;;
+    fused_profile) fused_profile ;;
     *) echo "unknown study $s" >> /tmp/res/studies.log ;;
   esac
 done

@@ -39,6 +39,8 @@ class EnvStudyConfig(BenchConfig):
     kinematics: tuple[Literal["lean", "fused", "mjx"], ...] = ("lean",)
     """The arm's pose passes to measure (EnvConfig.kinematics): 'lean' (the default),
     'fused' (its scalar form, fewer kernels) or 'mjx'."""
+    reset_strategies: tuple[Literal["select", "cond"], ...] = ("select",)
+    """BatchedEnv's auto-reset strategies to measure: 'select' (the default) or 'cond'."""
 
     QUICK: ClassVar[dict[str, Any]] = {"sizes": (4,), "real_sizes": (4,), "steps": 4, "repeats": 1}
     POSITIVE: ClassVar[tuple[str, ...]] = ("sizes", "real_sizes", "steps", "repeats")
@@ -47,6 +49,22 @@ class EnvStudyConfig(BenchConfig):
         super().__post_init__()
         check_drivers(self.drivers)
         check_kinematics(self.kinematics)
+        check_reset_strategies(self.reset_strategies)
+
+
+def check_reset_strategies(strategies: tuple[str, ...]) -> None:
+    bad = [s for s in strategies if s not in BatchedEnv.RESET_STRATEGIES]
+    if bad or not strategies:
+        raise ValueError(
+            f"reset_strategies={list(strategies)} is not valid; choose among "
+            f"{BatchedEnv.RESET_STRATEGIES}"
+        )
+
+
+def variant(rec: dict[str, Any]) -> str:
+    """A record's pose pass, and its reset strategy where not the default."""
+    strategy = rec.get("reset_strategy", "select")
+    return rec.get("kinematics", "lean") + ("" if strategy == "select" else f", {strategy}")
 
 
 def check_kinematics(kinematics: tuple[str, ...]) -> None:
@@ -98,13 +116,14 @@ def time_env(
     steps: int,
     repeats: int,
     devices: int | None = None,
+    reset_strategy: str = "select",
     **overrides: Any,
 ) -> dict[str, Any]:
     """Compile time and steady-state env steps/s of one (task, driver, num_envs), the
-    envs spread over `devices` (None: all, BatchedEnv's default); `overrides`: further
-    EnvConfig fields (e.g. real_contacts)."""
+    envs spread over `devices` (None: all, BatchedEnv's default) and reset by
+    `reset_strategy`; `overrides`: further EnvConfig fields (e.g. real_contacts)."""
     env = mara_mjx.make(task, driver=driver, **overrides)
-    benv = BatchedEnv(env, num_envs, devices=devices)
+    benv = BatchedEnv(env, num_envs, reset_strategy=reset_strategy, devices=devices)
     rollout = make_rollout(benv, steps)
     state = jax.jit(benv.reset)(jax.random.key(0))
     key = jax.random.key(1)
@@ -123,6 +142,7 @@ def time_env(
         "task": task,
         "driver": driver,
         "kinematics": env.config.kinematics,
+        "reset_strategy": reset_strategy,
         "num_envs": num_envs,
         "steps_per_call": steps,
         "compile_s": max(first - median, 0.0),
@@ -139,10 +159,12 @@ def env_study(args: EnvStudyConfig) -> list[dict[str, Any]]:
     records = []
     for driver in args.drivers:
         sizes = args.sizes if driver == "train" else args.real_sizes
-        for task, kin in itertools.product(args.tasks, args.kinematics):
+        for task, kin, rs in itertools.product(args.tasks, args.kinematics, args.reset_strategies):
             for n in sizes:
                 try:
-                    rec = time_env(task, driver, n, args.steps, args.repeats, kinematics=kin)
+                    rec = time_env(
+                        task, driver, n, args.steps, args.repeats, reset_strategy=rs, kinematics=kin
+                    )
                 except Exception as e:  # out of memory at the top of a sweep ends it
                     if "RESOURCE_EXHAUSTED" not in str(e) and "out of memory" not in str(e):
                         raise
@@ -150,7 +172,7 @@ def env_study(args: EnvStudyConfig) -> list[dict[str, Any]]:
                     break
                 records.append(rec)
                 print(
-                    f"{task:20s} {driver:5s} {kin:5s} n={n:>7d}"
+                    f"{task:20s} {driver:5s} {variant(rec):11s} n={n:>7d}"
                     f"  {rec['env_steps_per_s'] / 1e6:9.3f} M steps/s"
                     f"  compile {rec['compile_s']:6.1f} s",
                     flush=True,
@@ -163,13 +185,13 @@ TABLE: dict[str, Any] = {
     "columns": [
         ("task", lambda r: r["task"]),
         ("driver", lambda r: r["driver"]),
-        ("kinematics", lambda r: r.get("kinematics", "lean")),
+        ("kinematics", variant),
         ("envs", lambda r: f"{r['num_envs']:,}"),
         ("env steps/s", lambda r: fmt_m(r["env_steps_per_s"])),
         ("physics steps/s", lambda r: fmt_m(r["physics_steps_per_s"])),
         ("compile (s)", lambda r: f"{r['compile_s']:.1f}"),
     ],
-    "series": lambda r: f"{r['task']} ({r['driver']}, {r.get('kinematics', 'lean')})",
+    "series": lambda r: f"{r['task']} ({r['driver']}, {variant(r)})",
     "style": lambda r: "-" if r["driver"] == "train" else "--",
 }
 

@@ -41,7 +41,7 @@ import jax
 import jax.numpy as jnp
 
 import mara_mjx
-from mara_mjx.bench.env import check_drivers, check_kinematics
+from mara_mjx.bench.env import check_drivers, check_kinematics, check_reset_strategies, variant
 from mara_mjx.bench.runner import BenchConfig, Study
 from mara_mjx.envs.batched import BatchedEnv
 from mara_mjx.viz.plots import finish_figure
@@ -68,6 +68,8 @@ class LimitConfig(BenchConfig):
     kinematics: tuple[Literal["lean", "fused", "mjx"], ...] = ("lean",)
     """The arm's pose passes to measure (EnvConfig.kinematics): 'lean' (the default),
     'fused' (its scalar form, fewer kernels) or 'mjx'."""
+    reset_strategies: tuple[Literal["select", "cond"], ...] = ("select",)
+    """BatchedEnv's auto-reset strategies to measure: 'select' (the default) or 'cond'."""
 
     QUICK: ClassVar[dict[str, Any]] = {
         "sizes": (4,),
@@ -90,6 +92,7 @@ class LimitConfig(BenchConfig):
         super().__post_init__()
         check_drivers(self.drivers)
         check_kinematics(self.kinematics)
+        check_reset_strategies(self.reset_strategies)
 
 
 def _best_time(fn: Callable[..., Any], args: tuple, repeats: int) -> float:
@@ -123,13 +126,53 @@ def measure_ceilings(matmul_size: int, copy_size: int, repeats: int) -> dict[str
     return out
 
 
-def step_cost(task: str, driver: str, num_envs: int, kinematics: str = "lean") -> dict[str, Any]:
+# opcodes that launch no kernel of their own on a GPU (control flow, aliasing, tuples)
+_NO_KERNEL = {
+    "parameter",
+    "constant",
+    "get-tuple-element",
+    "tuple",
+    "bitcast",
+    "while",
+    "conditional",
+    "call",
+    "after-all",
+    "partition-id",
+    "replica-id",
+    "opt-barrier",
+    "add-dependency",
+}
+
+
+def kernel_count(hlo: str) -> int:
+    """The instructions of an optimised HLO module that launch work: those of the entry,
+    loop and branch computations (not of fused or applied computations), less control
+    flow and aliasing. On a GPU each is about one kernel (a fusion, a library call, a
+    copy); in a while loop, one per trip."""
+    called = set(re.findall(r"(?:calls|to_apply)=%?([\w.-]+)", hlo))
+    count, skip = 0, True
+    for line in hlo.splitlines():
+        head = re.match(r"^(?:ENTRY\s+)?%?([\w.-]+)\s.*\{\s*$", line)
+        if head and not line.startswith(" "):
+            skip = head.group(1) in called
+            continue
+        op = re.match(r"^\s+(?:ROOT\s+)?%?[\w.-]+\s*=\s*\S+(?:\s*\{[^}]*\})?\s+([\w-]+)\(", line)
+        if not skip and op and op.group(1) not in _NO_KERNEL:
+            count += 1
+    return count
+
+
+def step_cost(
+    task: str, driver: str, num_envs: int, kinematics: str = "lean", reset_strategy: str = "select"
+) -> dict[str, Any]:
     """XLA's cost analysis of one batched random-target env step (the env study's scan
-    body), per env; plus the known trip counts of the module's while loops."""
+    body), per env; plus the known trip counts of the module's while loops and its kernel
+    count (fusions and library calls, each one kernel launch on a GPU). With 'cond' the
+    reset branch is counted as if taken every step (XLA counts both branches)."""
     from mara_mjx.bench.env import make_step_body
 
     env = mara_mjx.make(task, driver=driver, kinematics=kinematics)
-    benv = BatchedEnv(env, num_envs)
+    benv = BatchedEnv(env, num_envs, reset_strategy=reset_strategy)
     state = jax.jit(benv.reset)(jax.random.key(0))
     body = make_step_body(benv)
     t0 = time.perf_counter()
@@ -145,6 +188,7 @@ def step_cost(task: str, driver: str, num_envs: int, kinematics: str = "lean") -
         "bytes": float(cost.get("bytes accessed", 0.0)) / num_envs,
         "transcendentals": float(cost.get("transcendentals", 0.0)) / num_envs,
         "while_loops": len(re.findall(r"\swhile\(", hlo)),
+        "kernels": kernel_count(hlo),
         "loop_trip_counts": trips,
         "analysis_compile_s": compile_s,
         "substeps": env.n_substeps if driver == "real" else 1,
@@ -163,27 +207,29 @@ def limit_study(args: LimitConfig) -> list[dict[str, Any]]:
         flush=True,
     )
     records = []
-    train_costs: dict[tuple[str, str, int], dict[str, Any]] = {}
+    train_costs: dict[tuple[str, str, str, int], dict[str, Any]] = {}
     for driver in args.drivers:
         sizes = args.sizes if driver == "train" else args.real_sizes
-        for task, kin in itertools.product(args.tasks, args.kinematics):
+        for task, kin, rs in itertools.product(args.tasks, args.kinematics, args.reset_strategies):
             for n in sizes:
-                cost = step_cost(task, driver, n, kin)
+                cost = step_cost(task, driver, n, kin, rs)
                 counted = {"flops": cost["flops"], "bytes": cost["bytes"]}
                 if driver == "real":
-                    if (task, kin, n) not in train_costs:
-                        train_costs[task, kin, n] = step_cost(task, "train", n, kin)
-                    base, k = train_costs[task, kin, n], cost["substeps"]
+                    if (task, kin, rs, n) not in train_costs:
+                        train_costs[task, kin, rs, n] = step_cost(task, "train", n, kin, rs)
+                    base, k = train_costs[task, kin, rs, n], cost["substeps"]
                     est = {q: base[q] + k * (cost[q] - base[q]) for q in ("flops", "bytes")}
                 else:
-                    train_costs[task, kin, n] = cost
+                    train_costs[task, kin, rs, n] = cost
                     est = counted
-                measured = time_env(task, driver, n, args.steps, args.repeats, kinematics=kin)
+                measured = time_env(
+                    task, driver, n, args.steps, args.repeats, reset_strategy=rs, kinematics=kin
+                )
                 records.append(roofline(task, driver, n, cost, est, ceilings, measured))
                 r = records[-1]
                 bound, sps = r["bound_env_steps_per_s"] / 1e6, r["env_steps_per_s"] / 1e6
                 print(
-                    f"{task:20s} {driver:5s} {kin:5s} n={n:>7d}"
+                    f"{task:20s} {driver:5s} {variant(r):11s} n={n:>7d}  {r['kernels']} kernels"
                     f"  {r['flops_per_env_step']:,.0f} FLOP  {r['bytes_per_env_step']:,.0f} B"
                     f"  bound {bound:.2f} M/s"
                     f" ({r['limited_by']})  measured {sps:.3f} M/s"
@@ -212,6 +258,7 @@ def roofline(
         "task": task,
         "driver": driver,
         "kinematics": measured["kinematics"],
+        "reset_strategy": measured["reset_strategy"],
         "num_envs": num_envs,
         "substeps": cost["substeps"],
         "flops_per_env_step": flops,
@@ -221,6 +268,7 @@ def roofline(
         "transcendentals_per_env_step": cost["transcendentals"],
         "loop_corrected": driver == "real",
         "while_loops": cost["while_loops"],
+        "kernels": cost["kernels"],
         "loop_trip_counts": cost["loop_trip_counts"],
         "flops_per_byte": flops / nbytes if nbytes > 0 else None,
         **ceilings,
@@ -260,7 +308,7 @@ def plot_limit(records: list[dict[str, Any]], title: str, path: Any) -> None:
             ax.plot(x, roof, style, color="k", linewidth=1, label=f"ceiling: {name} / memory")
         for i, r in enumerate(records):
             label = (
-                f"{r['task']} {r['driver']} n={r['num_envs']:,}: "
+                f"{r['task']} {r['driver']} {variant(r)} n={r['num_envs']:,}: "
                 f"{100 * r['fraction_of_bound']:.1f}% of bound"
             )
             ax.plot(
@@ -281,8 +329,9 @@ LIMIT_TABLE: dict[str, Any] = {
     "columns": [
         ("task", lambda r: r["task"]),
         ("driver", lambda r: r["driver"]),
-        ("kinematics", lambda r: r.get("kinematics", "lean")),
+        ("kinematics", variant),
         ("envs", lambda r: f"{r['num_envs']:,}"),
+        ("kernels", lambda r: str(r.get("kernels", ""))),
         ("FLOP / env step", lambda r: f"{r['flops_per_env_step']:,.0f}"),
         ("bytes / env step", lambda r: f"{r['bytes_per_env_step']:,.0f}"),
         ("FLOP / byte", lambda r: f"{r['flops_per_byte']:.2f}" if r["flops_per_byte"] else ""),
@@ -302,7 +351,9 @@ LIMIT_TABLE: dict[str, Any] = {
             "estimates: train + substeps x (real - train) (`xla_counted_*` in the JSON are "
             "the raw counts); loops inside a substep (the constraint solver's iterations) "
             "are still counted once, so the real driver's cost is, if anything, "
-            "underestimated and its bound overestimated.",
+            "underestimated and its bound overestimated. Kernels: the launching instructions "
+            "of one step's optimised module (`kernel_count`); a 'cond' step counts its "
+            "reset branch, which runs only where an episode ended.",
         ]
         if records
         else []
