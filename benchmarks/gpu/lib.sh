@@ -66,14 +66,15 @@ fused_limit() {  # issue 35: the train-driver env step with kinematics lean and 
 }
 fused_profile() {  # issue 35: where the fused step's time goes (benchmarks/profile_step.py,
   # fused and lean) and `benchmark limit` with the reset strategies select and cond; packed
-  local q="--sizes 262144 1048576" o=/tmp/res/fused_profile
+  # (FP_SIZES: the env counts, default 262144, issue 35's size; about 3 minutes on an H100)
+  local q="--sizes ${FP_SIZES:-262144}" o=/tmp/res/fused_profile
   [ -n "$QUICK" ] && q="--sizes 64 --steps 4 --repeats 1"
   mkdir -p $o
   { python benchmarks/profile_step.py --kinematics fused $q --out $o/profile_fused.json
-    python benchmarks/profile_step.py --kinematics lean ${q/ 1048576/} --out $o/profile_lean.json
+    python benchmarks/profile_step.py --kinematics lean $q --out $o/profile_lean.json
     python -m mara_mjx.benchmark limit --tasks MARACollisionOrient --drivers train \
       --kinematics fused --reset_strategies select cond \
-      $([ -n "$QUICK" ] && echo --quick || echo --sizes 262144 1048576) --out $o
+      $([ -n "$QUICK" ] && echo --quick || echo --sizes ${FP_SIZES:-262144}) --out $o
   } > /tmp/res/fused_profile.log 2>&1
   echo "fused_profile DONE $?" >> /tmp/res/studies.log
   pack fused_profile

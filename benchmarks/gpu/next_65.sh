@@ -35,7 +35,7 @@ one() {  # NAME TASK OFFSET RECIPE: one study of 16 seeds, its checkpoints kept
 #                                   1648-1663 with the restarts' last resort (section 68)
 #   fused_limit                     issue 35: `benchmark limit --kinematics lean fused` (section 68)
 #   fused_profile                   issue 35: where the fused step's time goes, and the reset
-#                                   strategies select and cond (section 69; about 5 minutes)
+#                                   strategies select and cond (section 69; about 3 minutes)
 #   (MCORT_FIRST=1, as before: mcort first)
 # e.g. the next lease, by value: STUDIES="mcort_fix fused_limit" (section 68 ran
 # "mcort tta_seeds plan_mao"; section 67 the first two of "distill_mco plan_mco plan_mao mcort")
