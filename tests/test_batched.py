@@ -64,3 +64,24 @@ def test_per_env_params_and_errors(batched):
         BatchedEnv(env, 0)
     with pytest.raises(ValueError, match="reset_strategy"):
         BatchedEnv(env, 2, reset_strategy="cached")
+
+
+def _bits(x) -> np.ndarray:
+    """A leaf as a numpy array (a typed PRNG key as its key data)."""
+    return np.asarray(jax.random.key_data(x) if jnp.issubdtype(x.dtype, jax.dtypes.prng_key) else x)
+
+
+def test_the_cond_reset_gives_the_select_reset_s_bits(batched):
+    # reset_strategy="cond" runs the resets only on steps where an episode ended; it must
+    # select the same values as "select" (the default), across episode ends and collisions
+    env, benv, reset, step = batched
+    cond_step = jax.jit(BatchedEnv(env, N, reset_strategy="cond").step)
+    a = b = reset(jax.random.key(3))
+    actions = jax.random.uniform(jax.random.key(4), (5, N, 6), minval=-2.0, maxval=2.0)
+    ended = 0
+    for act in actions:
+        a, b = step(a, act), cond_step(b, act)
+        ended += int(np.asarray(a.done).sum())
+        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+            np.testing.assert_array_equal(_bits(x), _bits(y))
+    assert ended >= 2 * N  # the 2-step episodes ended twice per env
