@@ -88,18 +88,18 @@ def check(args) -> dict:
     tested = lean.pose if args.kinematics == "lean" else functools.partial(arm_pose, lean)
     k = args.kinematics
     mjx_pose = jax.jit(jax.vmap(arm.pose))
-    lean_pose = jax.jit(jax.vmap(tested))
-    lean_flag = jax.jit(jax.vmap(lambda q: tested(q).collided))
+    tested_pose = jax.jit(jax.vmap(tested))
+    tested_flag = jax.jit(jax.vmap(lambda q: tested(q).collided))
     rng = np.random.default_rng(args.seed)
     sets = {"random": rng.uniform(arm.lower, arm.upper, (args.random, 6)).astype(np.float32)}
     # near contact: pairs of a free and a colliding random configuration, bisected
     pool = rng.uniform(arm.lower, arm.upper, (4 * args.near, 6)).astype(np.float32)
-    hit = np.asarray(lean_flag(pool))
+    hit = np.asarray(tested_flag(pool))
     n = min(args.near, int(hit.sum()), int((~hit).sum()))
     lo, hi = pool[~hit][:n].astype(np.float64), pool[hit][:n].astype(np.float64)
     for _ in range(24):
         mid = (0.5 * (lo + hi)).astype(np.float32)
-        f = np.asarray(lean_flag(mid))[:, None]
+        f = np.asarray(tested_flag(mid))[:, None]
         hi, lo = np.where(f, mid, hi), np.where(f, lo, mid)
     near = 0.5 * (lo + hi) + rng.uniform(-args.offset, args.offset, (n, 6))
     sets["near_contact"] = np.clip(near, arm.lower, arm.upper).astype(np.float32)
@@ -107,25 +107,26 @@ def check(args) -> dict:
     out = {"command": "python " + " ".join(sys.argv), "jax": jax.__version__,
            "mujoco": mujoco.__version__, "device": str(jax.devices()[0])}  # fmt: skip
     for name, qs in sets.items():
-        a, b = mjx_pose(qs), lean_pose(qs)
+        a, b = mjx_pose(qs), tested_pose(qs)
         c_flag, c_dist = c_mujoco(arm.mj_model, qs)
-        mjx_flag, lean_f = np.asarray(a.collided), np.asarray(b.collided)
+        mjx_flag, tested_f = np.asarray(a.collided), np.asarray(b.collided)
         band = np.digitize(np.abs(c_dist), BANDS) - 1
         rows = {}
         for j in range(len(BANDS) - 1):
             sel = band == j
             rows[f"|d| {BANDS[j]:g}-{BANDS[j + 1]:g} m"] = {
                 "configurations": int(sel.sum()),
-                f"{k}_vs_c_mismatch": int((lean_f[sel] != c_flag[sel]).sum()),
+                f"{k}_vs_c_mismatch": int((tested_f[sel] != c_flag[sel]).sum()),
                 "mjx_vs_c_mismatch": int((mjx_flag[sel] != c_flag[sel]).sum()),
-                f"{k}_vs_mjx_mismatch": int((lean_f[sel] != mjx_flag[sel]).sum()),
+                f"{k}_vs_mjx_mismatch": int((tested_f[sel] != mjx_flag[sel]).sum()),
             }
-        disagree = np.where(lean_f != c_flag)[0]
+        disagree = np.where(tested_f != c_flag)[0]
         ref = reference_flags(lean, qs[disagree])
+        agree_ref = int((ref == tested_f[disagree]).sum())
         out[name] = {
             "configurations": len(qs),
             f"{k}_vs_c_disagreements": len(disagree),
-            f"of_them_{k}_agrees_with_the_float64_reference": int((ref == lean_f[disagree]).sum()),
+            f"of_them_{k}_agrees_with_the_float64_reference": agree_ref,
             "of_them_c_says_free_where_the_reference_finds_penetration": int(
                 (ref & ~c_flag[disagree]).sum()
             ),
