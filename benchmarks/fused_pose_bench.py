@@ -187,7 +187,8 @@ def main() -> None:
     from mara_mjx.runtime import files, outputs
 
     try:  # a new file or this script's own earlier output, checked before the work
-        outputs.check_output(args.out, "--out report", _ours, args.overwrite)
+        ours = lambda path: outputs.written_by(path, "python benchmarks/fused_pose_bench.py")  # noqa: E731
+        outputs.check_output(args.out, "--out report", ours, args.overwrite)
     except UserError as e:
         raise SystemExit(f"error: {e}") from None
 
@@ -251,18 +252,6 @@ def main() -> None:
             for k, v in out["agreement"].items() if isinstance(v, dict)))  # fmt: skip
     files.write_atomic(args.out, json.dumps(out, indent=1))
     print(f"wrote {args.out}")
-
-
-def _ours(path: Path) -> bool:
-    """An earlier --out report of this script (replaced; anything else is refused)."""
-    try:
-        return (
-            json.loads(path.read_text())
-            .get("command", "")
-            .startswith("python benchmarks/fused_pose_bench.py")
-        )
-    except (OSError, ValueError, AttributeError):
-        return False
 
 
 if __name__ == "__main__":

@@ -38,6 +38,7 @@ import mujoco
 import numpy as np
 
 BANDS = (0.0, 1e-6, 1e-5, 1e-4, np.inf)
+COMMAND = "python benchmarks/lean_check.py"
 
 
 def c_mujoco(m: mujoco.MjModel, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -80,13 +81,11 @@ def reference_flags(lean, qs: np.ndarray, samples: int = 20001) -> np.ndarray:
 
 def check(args) -> dict:
     from mara_mjx.envs.arm import Arm
-    from mara_mjx.envs.fused_pose import arm_pose
-    from mara_mjx.envs.lean import LeanArm
 
     arm = Arm()
-    lean = LeanArm.from_model(arm.mj_model)
-    tested = lean.pose if args.kinematics == "lean" else functools.partial(arm_pose, lean)
+    lean = arm.lean
     k = args.kinematics
+    tested = functools.partial(arm.pose_with, kinematics=k)
     mjx_pose = jax.jit(jax.vmap(arm.pose))
     tested_pose = jax.jit(jax.vmap(tested))
     tested_flag = jax.jit(jax.vmap(lambda q: tested(q).collided))
@@ -104,7 +103,7 @@ def check(args) -> dict:
     near = 0.5 * (lo + hi) + rng.uniform(-args.offset, args.offset, (n, 6))
     sets["near_contact"] = np.clip(near, arm.lower, arm.upper).astype(np.float32)
 
-    out = {"command": "python " + " ".join(sys.argv), "jax": jax.__version__,
+    out = {"command": " ".join([COMMAND, *sys.argv[1:]]), "jax": jax.__version__,
            "mujoco": mujoco.__version__, "device": str(jax.devices()[0])}  # fmt: skip
     for name, qs in sets.items():
         a, b = mjx_pose(qs), tested_pose(qs)
@@ -145,7 +144,7 @@ def check(args) -> dict:
 def timing(args) -> dict:
     import mara_mjx
 
-    out = {"command": "python " + " ".join(sys.argv), "jax": jax.__version__,
+    out = {"command": " ".join([COMMAND, *sys.argv[1:]]), "jax": jax.__version__,
            "device": str(jax.devices()[0]), "envs": args.envs, "steps": args.steps}  # fmt: skip
     for kinematics in ("mjx", "lean"):
         env = mara_mjx.make("MARACollisionOrient", kinematics=kinematics)
@@ -193,21 +192,13 @@ def main() -> None:
 
     try:  # a new file or this script's own earlier output, checked before the work
         if args.out:
-            outputs.check_output(args.out, "--out report", _ours, args.overwrite)
+            ours = lambda path: outputs.written_by(path, COMMAND)  # noqa: E731
+            outputs.check_output(args.out, "--out report", ours, args.overwrite)
     except UserError as e:
         raise SystemExit(f"error: {e}") from None
     out = check(args) if args.mode == "check" else timing(args)
     if args.out:
         files.write_atomic(args.out, json.dumps(out, indent=1))
-
-
-def _ours(path) -> bool:
-    """An earlier --out report of this script (replaced; anything else is refused)."""
-    try:
-        with open(path) as f:
-            return "benchmarks/lean_check.py" in json.load(f).get("command", "")
-    except (OSError, ValueError, AttributeError):
-        return False
 
 
 if __name__ == "__main__":

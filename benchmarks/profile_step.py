@@ -97,7 +97,8 @@ def main() -> None:
     from mara_mjx.runtime import files, outputs
 
     try:  # a new file or this script's own earlier output, checked before the work
-        outputs.check_output(args.out, "--out report", _ours, args.overwrite)
+        ours = lambda path: outputs.written_by(path, COMMAND)  # noqa: E731
+        outputs.check_output(args.out, "--out report", ours, args.overwrite)
     except UserError as e:
         raise SystemExit(f"error: {e}") from None
     env = mara_mjx.make(args.task, kinematics=args.kinematics)
@@ -133,14 +134,6 @@ def main() -> None:
                 f"  compile {rec['compile_s']:.1f} s",
                 flush=True,
             )
-
-
-def _ours(path: Path) -> bool:
-    """An earlier --out report of this script (replaced; anything else is refused)."""
-    try:
-        return json.loads(path.read_text()).get("command", "").startswith(COMMAND)
-    except (OSError, ValueError, AttributeError):
-        return False
 
 
 if __name__ == "__main__":

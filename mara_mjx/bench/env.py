@@ -19,7 +19,10 @@ import jax.numpy as jnp
 
 import mara_mjx
 from mara_mjx.bench.runner import BenchConfig, Study, fmt_m, peak_memory
+from mara_mjx.envs.base import KINEMATICS
 from mara_mjx.envs.batched import BatchedEnv
+
+DRIVERS = ("train", "real")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,41 +47,17 @@ class EnvStudyConfig(BenchConfig):
 
     QUICK: ClassVar[dict[str, Any]] = {"sizes": (4,), "real_sizes": (4,), "steps": 4, "repeats": 1}
     POSITIVE: ClassVar[tuple[str, ...]] = ("sizes", "real_sizes", "steps", "repeats")
-
-    def __post_init__(self):
-        super().__post_init__()
-        check_drivers(self.drivers)
-        check_kinematics(self.kinematics)
-        check_reset_strategies(self.reset_strategies)
-
-
-def check_reset_strategies(strategies: tuple[str, ...]) -> None:
-    bad = [s for s in strategies if s not in BatchedEnv.RESET_STRATEGIES]
-    if bad or not strategies:
-        raise ValueError(
-            f"reset_strategies={list(strategies)} is not valid; choose among "
-            f"{BatchedEnv.RESET_STRATEGIES}"
-        )
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {
+        "drivers": DRIVERS,
+        "kinematics": KINEMATICS,
+        "reset_strategies": BatchedEnv.RESET_STRATEGIES,
+    }
 
 
 def variant(rec: dict[str, Any]) -> str:
     """A record's pose pass, and its reset strategy where not the default."""
     strategy = rec.get("reset_strategy", "select")
     return rec.get("kinematics", "lean") + ("" if strategy == "select" else f", {strategy}")
-
-
-def check_kinematics(kinematics: tuple[str, ...]) -> None:
-    from mara_mjx.envs.base import KINEMATICS
-
-    bad = [k for k in kinematics if k not in KINEMATICS]
-    if bad or not kinematics:
-        raise ValueError(f"kinematics={list(kinematics)} is not valid; choose among {KINEMATICS}")
-
-
-def check_drivers(drivers: tuple[str, ...]) -> None:
-    bad = [d for d in drivers if d not in ("train", "real")]
-    if bad or not drivers:
-        raise ValueError(f"drivers={list(drivers)} is not valid; choose among train, real")
 
 
 def make_step_body(benv: BatchedEnv):

@@ -41,7 +41,7 @@ import jax
 import jax.numpy as jnp
 
 import mara_mjx
-from mara_mjx.bench.env import check_drivers, check_kinematics, check_reset_strategies, variant
+from mara_mjx.bench.env import EnvStudyConfig, variant
 from mara_mjx.bench.runner import BenchConfig, Study
 from mara_mjx.envs.batched import BatchedEnv
 from mara_mjx.viz.plots import finish_figure
@@ -87,12 +87,7 @@ class LimitConfig(BenchConfig):
         "matmul_size",
         "copy_size",
     )
-
-    def __post_init__(self):
-        super().__post_init__()
-        check_drivers(self.drivers)
-        check_kinematics(self.kinematics)
-        check_reset_strategies(self.reset_strategies)
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = EnvStudyConfig.CHOICES
 
 
 def _best_time(fn: Callable[..., Any], args: tuple, repeats: int) -> float:

@@ -29,7 +29,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 
 import mara_mjx
-from mara_mjx.bench.env import check_drivers, time_env
+from mara_mjx.bench.env import DRIVERS, time_env
 from mara_mjx.bench.runner import BenchConfig, Study, device_info, fmt_m
 
 
@@ -50,10 +50,7 @@ class PeersConfig(BenchConfig):
 
     QUICK: ClassVar[dict[str, Any]] = {"sizes": (4,), "steps": 4, "repeats": 1}
     POSITIVE: ClassVar[tuple[str, ...]] = ("sizes", "steps", "repeats")
-
-    def __post_init__(self):
-        super().__post_init__()
-        check_drivers(self.drivers)
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"drivers": DRIVERS}
 
 
 def c_rollout_inputs(

@@ -58,6 +58,8 @@ class BenchConfig(ConfigMixin):
     QUICK: ClassVar[dict[str, Any]] = {}
     POSITIVE: ClassVar[tuple[str, ...]] = ()
     """Int fields (or tuples of ints) that must be >= 1."""
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {}
+    """Tuple fields -> the values allowed in them (and not empty)."""
     SHARES_DEVICE: ClassVar[bool] = False
     """The study starts other JAX processes (users' commands) while its own backend is
     up: its process leaves JAX's GPU memory preallocation off, so that they get the
@@ -73,6 +75,12 @@ class BenchConfig(ConfigMixin):
             value = getattr(self, name)
             for v in value if isinstance(value, tuple) else (value,):
                 check_int(name, v, minimum=1)
+        for name, valid in self.CHOICES.items():
+            values = getattr(self, name)
+            if not values or any(v not in valid for v in values):
+                raise ValueError(
+                    f"{name}={list(values)} is not valid; choose among {', '.join(valid)}"
+                )
 
 
 class Study(NamedTuple):
