@@ -3,13 +3,14 @@
 # mara_mjx.benchmark tta --parts tta` (MARACollisionOrient, its CLI default; seeds
 # 1000-1002, each cold with an empty compilation cache and then warm) for two packages,
 # alternating (ROUNDS, default 1):
-#   before   sweep_in/before: main before commit ac8d6a3 (`update` traced twice, the reach
-#            probe inside run, the guard's nine clearances nine copies);
+#   before   sweep_in/before: the code at BEFORE (default ac8d6a3~1: `update` traced twice,
+#            the reach probe inside run, the guard's nine clearances nine copies; section 70:
+#            df3f0d3, the saved policy's det step still in run);
 #   main     this tree (all three changed; every one bitwise the same training: study 61,
 #            results/time_to_accuracy/cold61/).
 # Made here (ignored by git; carry sweep_in/before):
 #   rm -rf sweep_in/before && mkdir -p sweep_in/before
-#   git archive ac8d6a3~1 mara_mjx assets | tar -x -C sweep_in/before
+#   git archive ${BEFORE:-ac8d6a3~1} mara_mjx assets | tar -x -C sweep_in/before
 # (Study 61 also ran a package `guardmap`, main with the guard's lax.map as a patch, since
 # landed: git log -- mara_mjx/envs/clearance.py.)
 # Run it alone on the GPU (timings). Launch with setsid, follow with poll.sh.
@@ -44,7 +45,7 @@ here=${MARA_MJX_GIT_COMMIT:-unknown}
 for round in $(seq 1 ${ROUNDS:-1}); do  # one round: 18 train commands, about 14 min on an H100
   for d in $packages; do
     case $d in
-      before) one tta_before_$round $PWD/sweep_in/before ac8d6a3~1 ;;
+      before) one tta_before_$round $PWD/sweep_in/before ${BEFORE:-ac8d6a3~1} ;;
       main) one tta_main_$round $PWD $here ;;
       *) echo "unknown package $d (before, main)" >> /tmp/res/studies.log ;;
     esac

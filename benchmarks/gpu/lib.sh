@@ -79,6 +79,20 @@ fused_profile() {  # issue 35: where the fused step's time goes (benchmarks/prof
   echo "fused_profile DONE $?" >> /tmp/res/studies.log
   pack fused_profile
 }
+fused_repeat() {  # issue 35: the fused step's reset strategies measured again, in both
+  # orders and at two sizes (section 70: profile_step and limit disagreed on which is faster)
+  local o=/tmp/res/fused_repeat sizes=${FP_SIZES:-262144 524288} q=""
+  [ -n "$QUICK" ] && sizes=64 && q="--steps 4 --repeats 1"
+  mkdir -p $o
+  { for order in "cond select" "select cond"; do
+      python -m mara_mjx.benchmark limit --tasks MARACollisionOrient --drivers train \
+        --kinematics fused --reset_strategies $order --sizes $sizes $q --out $o/limit_${order// /_}
+    done
+    python benchmarks/profile_step.py --kinematics fused --sizes $sizes $q --out $o/profile_fused.json
+  } > /tmp/res/fused_repeat.log 2>&1
+  echo "fused_repeat DONE $?" >> /tmp/res/studies.log
+  pack fused_repeat
+}
 pack() {
   tar czf /tmp/res/$1.tgz.part -C /tmp/res $(cd /tmp/res && ls -d $1 $1.log 2>/dev/null) && mv /tmp/res/$1.tgz.part /tmp/res/$1.tgz
 }

@@ -163,9 +163,9 @@ class CurriculumConfig(_ConfigMixin):
     `det_error_mm` starts where the sampled policy left each env and cannot show a
     deployed rule that takes several steps (ik_orient_first holds the TCP 1 cm off until
     the tool is aligned: benchmarks/NOTES.md section 28; for the Orient tasks' time to
-    accuracy the orient_first preset sets 100). No effect on training. With
-    `population`, member 0's probe before the call's exploit step (as its other metrics).
-    0: off."""
+    accuracy the orient_first preset sets 100). No effect on training; det_* then
+    measure the training network's mean (`run` without the saved policy's forward). With
+    `population`, member 0's probe before the call's exploit step (as its other metrics). 0: off."""
     teacher: str = ""
     """Imitation instead of reward: a run (folder or checkpoint) of the same task whose
     deployed policy this run learns on the states it visits (`mara_mjx.ppo.teacher`); with

@@ -11,8 +11,8 @@
 One update, top to bottom:
   1. rollout: `num_steps` steps of all envs with actions sampled from the Gaussian policy
      (a lax.scan over BatchedEnv.step, which auto-resets ended episodes), plus one extra
-     step with the deterministic action (the Gaussian mean) whose metrics measure the
-     current policy's accuracy and whose state is then discarded ("probe");
+     step with the deterministic action (the saved policy's; with the reach probe below,
+     the Gaussian mean) whose metrics measure accuracy, its state discarded ("probe");
   2. values of obs and of final_obs (pre-reset) -> GAE with truncation bootstrap (losses.py);
   3. `update_epochs` passes over the shuffled batch in `num_minibatches` Adam steps of the
      clipped PPO loss (losses.py); minibatches are stratified by environment (each holds
@@ -162,6 +162,8 @@ def make_train(
     mesh = benv.mesh
     network = make_network(train_config, benv.action_size, training=True)
     saved = make_network(train_config, benv.action_size)  # the saved policy (the probe's)
+    det_network = saved if curriculum.probe_reach_steps == 0 else network  # det_* step: no
+    # saved forward where the reach probe measures it (40% of `run`: benchmarks/NOTES.md s. 70)
     optimizer = make_optimizer(config)
     lr_at_update = make_lr_schedule(config)
     obs_size = benv.observation_size  # hidden_obs within it: checked by for_env
@@ -218,11 +220,10 @@ def make_train(
             sample = mean + sigma * jax.random.normal(noise_key, mean.shape)
             probe = t == config.num_steps
             probe_mean = mean
-            if network != saved:  # training-only parts: the probe measures the saved
-                # policy (its step only)
+            if det_network != network:  # training-only parts: the saved policy (its step)
                 probe_mean = jax.lax.cond(
                     probe,
-                    lambda: forward(saved, params, stats, env_state.obs, config.obs_clip)[0],
+                    lambda: forward(det_network, params, stats, env_state.obs, clip)[0],
                     lambda: mean,
                 )
             action = jnp.where(probe, probe_mean, sample)
@@ -304,8 +305,7 @@ def make_train(
         def minibatch_step(carry, mb: Batch):
             params, opt_state = carry
             grads, info = jax.grad(loss_fn, has_aux=True)(params, stats, mb)
-            # One all-reduce of one flat buffer. The pytree (13 arrays) made one variadic
-            # all-reduce that cost ~36 us per step on 4 H200s instead of ~6 (NOTES s. 10).
+            # one flat all-reduce: the pytree's variadic one cost ~36 us/step, not ~6 (NOTES s. 10)
             flat, unravel = ravel_pytree(grads)
             grads = unravel(sharding.pmean(flat, mesh))
             updates, opt_state = optimizer.update(grads, opt_state, params)
