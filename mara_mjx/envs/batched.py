@@ -14,7 +14,9 @@ measured by `benchmarks/profile_step.py` (see benchmarks/NOTES.md):
     step), and nothing waits on the host.
   * "cond": run the resets under `lax.cond(any(done))`. The tasks truncate all
     environments together, so the branch is rarely taken, but on GPU XLA reads the
-    predicate back to the host every step, which stalls the pipeline.
+    predicate back to the host every step. Which is faster depends on the loop around
+    the step (an H100, the fused pass at 262,144 envs: cond 20% ahead in `benchmark
+    limit`'s loop, 14% behind in profile_step.py's; benchmarks/NOTES.md section 70).
 
 Devices: `devices=None` (default) spreads the environments over every device
 (`mara_mjx.runtime.sharding`): the state is sharded along its leading (N,) axis, so num_envs
