@@ -1050,7 +1050,7 @@ def _equations(closed) -> int:
 def test_with_the_reach_probe_run_leaves_out_the_saved_policys_forward_pass():
     """The rollout's one-step det_* measure takes the training network's mean where the
     reach probe measures the saved policy: `run` then traces no second forward pass with
-    the deployed rules (the collision guard, the orient-first zone), which made 40% of
+    the deployed rules (the collision guard, the orient-first zone), which made 37% of
     its compiled program (benchmarks/NOTES.md section 70); without the probe it does."""
     from mara_mjx.ppo.presets import PRESETS
 
