@@ -287,6 +287,17 @@ def test_tta_study_quick(runs):
     assert limit["ppo_fraction_of_bound"] == pytest.approx(
         limit["ppo_env_steps_per_s"] / limit["bound_env_steps_per_s"]
     )
+    # the peers on the same machine: C MuJoCo against the limit part's MJX step, brax's
+    # PPO against ours (the brax study, same env steps)
+    c_peer, *ppo = [r for r in records if r["kind"] == "peer"]
+    assert c_peer["impl"].startswith("mujoco C") and c_peer["num_envs"] == 4
+    assert c_peer["mjx_env_steps_per_s"] == limit["env_steps_per_s"]
+    assert c_peer["mjx_over_c"] == pytest.approx(
+        limit["env_steps_per_s"] / c_peer["env_steps_per_s"]
+    )
+    assert [r["impl"] for r in ppo] == ["ours (mara_mjx.ppo)", "brax ppo"]
+    assert all(r["env_steps"] == 64 and r["env_steps_per_s"] > 0 for r in ppo)
+    assert "C peer (mujoco C" in text and "PPO peers (`brax` study" in text
 
 
 def test_tta_reads_the_cli_times_on_the_launch_clock(tmp_path):

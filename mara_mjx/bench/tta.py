@@ -2,7 +2,7 @@
 as a user of the train CLI sees it, with the PPO's speed under XLA's GPU-op choices and
 the env step against the device's ceilings (issue 14).
 
-On the one task of `--tasks` (default MARACollisionOrient), four parts (`--parts`):
+On the one task of `--tasks` (default MARACollisionOrient), five parts (`--parts`):
 
 tta      For each of `--seeds`, the user's command, as a fresh subprocess:
              python -m mara_mjx.train --env TASK --seed S [--preset P] --evaluate false
@@ -45,6 +45,13 @@ limit    `mara_mjx.bench.limit.limit_study` (the limit study itself) for the tra
          themselves: this process keeps JAX's GPU memory preallocation off
          (`BenchConfig.SHARES_DEVICE`), and the study's `--deterministic` flag acts on
          this part alone (the train commands get the user's XLA_FLAGS, as above).
+peers    The alternatives on the same machine, after the rest: C MuJoCo doing the train
+         driver's work (kinematics + collision) on every CPU core at `--limit_num_envs`
+         environments (the `peers` study's train-driver side), against the limit part's
+         MJX rate at that size; then brax's PPO against ours (the `brax` study: its
+         `default` preset, `--peers_total_timesteps` env steps each, both scored alike
+         by the same settled-error probe), their env steps/s and time to 5 mm and 1 mm
+         from the start of training.
 
 Clocks ("from command start", `launch_offset_s`, `command_s`, the CLI's times moved onto
 the launch clock): `mara_mjx.bench.train_command`, which launches and reads every train
@@ -84,11 +91,12 @@ class TTAConfig(BenchConfig):
 
     tasks: tuple[str, ...] = ("MARACollisionOrient",)
     """The registered env to train (one)."""
-    parts: tuple[Literal["tta", "xla_ops", "seeds", "limit"], ...] = (
+    parts: tuple[Literal["tta", "xla_ops", "seeds", "limit", "peers"], ...] = (
         "tta",
         "xla_ops",
         "seeds",
         "limit",
+        "peers",
     )
     """Parts to run (module docstring)."""
     seeds: tuple[int, ...] = (0, 1, 2)
@@ -108,7 +116,11 @@ class TTAConfig(BenchConfig):
     seeds_total_timesteps: int = 10_000_000
     """--total_timesteps of the seeds part's runs, per seed (0: as the tta runs)."""
     limit_num_envs: int = 2048
-    """Environments of the limit part's env step (2048: the default preset's)."""
+    """Environments of the limit part's env step (2048: the default preset's) and of the
+    peers part's C MuJoCo."""
+    peers_total_timesteps: int = 10_000_000
+    """Env steps of each PPO (brax's and ours) in the peers part (0: the brax study's
+    default, or its --quick size)."""
     timeout_s: int = 1200
     """Limit on each train command (seconds)."""
     work_dir: str = ""
@@ -123,6 +135,7 @@ class TTAConfig(BenchConfig):
         "seed_counts": (2,),
         "seeds_total_timesteps": 0,
         "limit_num_envs": 4,
+        "peers_total_timesteps": 0,
     }
     POSITIVE: ClassVar[tuple[str, ...]] = ("limit_num_envs", "timeout_s", "seed_counts")
     SHARES_DEVICE: ClassVar[bool] = True
@@ -134,13 +147,14 @@ class TTAConfig(BenchConfig):
         if len(self.tasks) != 1:
             raise ValueError(f"tta trains one task; got --tasks {' '.join(self.tasks)}")
         if not self.parts:
-            raise ValueError("parts: give at least one of tta, xla_ops, seeds, limit")
+            raise ValueError("parts: give at least one of tta, xla_ops, seeds, limit, peers")
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
             raise ValueError(f"seeds must be distinct and at least one, got {self.seeds}")
         for seed in self.seeds:
             check_int("seeds", seed, minimum=0)
         check_int("xla_ops_total_timesteps", self.xla_ops_total_timesteps, minimum=0)
         check_int("seeds_total_timesteps", self.seeds_total_timesteps, minimum=0)
+        check_int("peers_total_timesteps", self.peers_total_timesteps, minimum=0)
         if len(set(self.seed_counts)) != len(self.seed_counts) or (
             "seeds" in self.parts and not self.seed_counts
         ):
@@ -302,8 +316,28 @@ def limit_part(config: TTAConfig, ppo_env_steps_per_s: float | None) -> dict[str
     }
 
 
+def peers_part(config: TTAConfig, mjx_env_steps_per_s: float | None) -> list[dict[str, Any]]:
+    """C MuJoCo's train-driver work against the limit part's MJX rate, then brax's PPO
+    against ours (module docstring); records of kind "peer"."""
+    from mara_mjx.bench.peers import PeersConfig, peers_study
+    from mara_mjx.bench.ppo import BraxStudyConfig, brax_study
+
+    task = config.tasks[0]
+    c_config = PeersConfig(tasks=(task,), drivers=("train",), skip_mjx=True)
+    ppo_config = BraxStudyConfig(tasks=(task,))
+    if config.quick:
+        c_config = c_config.replace(quick=True, **PeersConfig.QUICK)
+        ppo_config = ppo_config.replace(quick=True, **BraxStudyConfig.QUICK)
+    if config.peers_total_timesteps:
+        ppo_config = ppo_config.replace(total=config.peers_total_timesteps)
+    (c,) = peers_study(c_config.replace(sizes=(config.limit_num_envs,)))
+    mjx = mjx_env_steps_per_s
+    c = {**c, "mjx_env_steps_per_s": mjx, "mjx_over_c": mjx / c["env_steps_per_s"] if mjx else None}
+    return [{"kind": "peer", "part": "peers", **r} for r in (c, *brax_study(ppo_config))]
+
+
 def tta_study(config: TTAConfig) -> list[dict[str, Any]]:
-    """The parts of the module docstring, in order; the limit part last."""
+    """The parts of the module docstring, in order; the limit and peers parts last."""
     check_train_args(config.train_args, config.tasks[0], config.preset, build_env=True)
     if config.work_dir:
         Path(config.work_dir).mkdir(parents=True, exist_ok=True)
@@ -319,6 +353,9 @@ def tta_study(config: TTAConfig) -> list[dict[str, Any]]:
         if "limit" in config.parts:
             warm = [r for r in records if r["kind"] == "median" and r["cache"] == "warm"]
             records.append(limit_part(config, warm[0]["env_steps_per_s"] if warm else None))
+        if "peers" in config.parts:
+            limit = [r for r in records if r["kind"] == "limit"]
+            records += peers_part(config, limit[0]["env_steps_per_s"] if limit else None)
     finally:
         if not config.work_dir:
             import shutil

@@ -84,6 +84,33 @@ def _notes(records: list[dict[str, Any]]) -> list[str]:
             f"the PPO {mega(r['ppo_env_steps_per_s'])}"
             + (f" ({100 * ppo:.2f}% of it)." if ppo else "."),
         ]
+    return lines + _peer_notes([r for r in records if r["kind"] == "peer"])
+
+
+def _peer_notes(peers: list[dict[str, Any]]) -> list[str]:
+    """The peers part: C MuJoCo against the MJX env step, brax's PPO against ours."""
+    lines = []
+    for r in (r for r in peers if "mjx_over_c" in r):
+        ratio = r["mjx_over_c"]
+        lines += [
+            "",
+            f"C peer ({r['impl']}, the train driver's work on {r['num_envs']:,} envs): "
+            f"{mega(r['env_steps_per_s'])} env steps/s; MJX's env step (limit part) "
+            f"{mega(r['mjx_env_steps_per_s'])}" + (f", {ratio:.3g}x C's." if ratio else "."),
+        ]
+    ppo = [r for r in peers if "settled_to_5mm_s" in r or "curve" in r]
+    if ppo:
+        text = "; ".join(
+            f"{r['impl']} {mega(r['env_steps_per_s'])} env steps/s, settled error below 5 mm "
+            f"at {secs(r.get('settled_to_5mm_s'))} and 1 mm at "
+            f"{secs(r.get('settled_to_1mm_s'))} of training"
+            for r in ppo
+        )
+        lines += [
+            "",
+            f"PPO peers (`brax` study, preset default, {_int(ppo[0]['env_steps'])} env steps "
+            f"each, compile excluded): {text}.",
+        ]
     return lines
 
 

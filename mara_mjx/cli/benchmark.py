@@ -58,7 +58,9 @@ Studies:
         one program, the way to fill a GPU), cold and warm, its env steps/s summed over
         the seeds and whether every seed's bits repeat; and the env step's FLOPs and
         bytes against the device's measured ceilings (the `limit` study's code, one
-        size). (`mara_mjx.bench.tta`)
+        size); last, the peers on the same machine: C MuJoCo doing the train driver's
+        work on every CPU core at that size, and brax's PPO against ours (the `brax`
+        study, `--peers_total_timesteps` env steps each). (`mara_mjx.bench.tta`)
 
 scaling  env steps/s of the batched step and of PPO against the number of devices
         (1, 2, 4, ... all; weak scaling with a fixed per-device batch, and strong
