@@ -10,6 +10,16 @@ median of `--repeats` calls after a warm-up:
                 default "select" reset strategy: a reset computed for every env each step
   batched_cond  the same with reset_strategy="cond": the reset only on steps where an
                 episode ended (the tasks truncate every env together)
+  loop, loop_cond
+                BatchedEnv.step in the `env` and `limit` studies' own scan body
+                (`bench.env.make_step_body`: the same step and draws, plus a per-step
+                output, the fraction of envs that collided), each call from the same state
+  loop_carried, loop_cond_carried
+                the same, the state carried from call to call, as those studies time it
+                (the loop stages' programs: their compile is cached, 0 s)
+                (the loop stages separate the two harnesses' differences: on an H100 at
+                262,144 envs the fused step's cond led select by 20% in `limit` and
+                trailed by 14% in `batched_cond`, benchmarks/NOTES.md section 70)
 and each stage's kernels (the launching instructions of its optimised module, the scan's
 body counted once: `mara_mjx.bench.limit.kernel_count`).
 
@@ -33,6 +43,7 @@ import jax
 import jax.numpy as jnp
 
 import mara_mjx
+from mara_mjx.bench.env import make_rollout
 from mara_mjx.bench.limit import kernel_count
 from mara_mjx.bench.runner import device_info, versions
 from mara_mjx.envs.base import KINEMATICS
@@ -41,19 +52,27 @@ from mara_mjx.envs.batched import BatchedEnv
 COMMAND = "python benchmarks/profile_step.py"
 
 
-def timed(fn, *args, repeats=5) -> float:
-    """The median wall-clock of `repeats` calls after a warm-up call."""
-    jax.block_until_ready(fn(*args))
+def timed(fn, x, key, repeats=5, carried=False) -> float:
+    """The median wall-clock of `repeats` calls after a warm-up call; `carried`: each call
+    starts from the previous call's (state, key), else all from (x, key)."""
+    out = jax.block_until_ready(fn(x, key))
     ts = []
     for _ in range(repeats):
+        if carried:
+            x, key = out[0], out[1]
         t0 = time.perf_counter()
-        jax.block_until_ready(fn(*args))
+        out = jax.block_until_ready(fn(x, key))
         ts.append(time.perf_counter() - t0)
     return statistics.median(ts)
 
 
+STAGES = ("draws", "pose", "env.step", "batched", "batched_cond", "loop", "loop_cond")
+STAGES += ("loop_carried", "loop_cond_carried")
+
+
 def stages(env, n: int, steps: int) -> dict:
-    """name -> (a jitted scan of `steps` steps: (x, key) -> (x, key), its first x)."""
+    """name -> (a jitted scan of `steps` steps: (x, key) -> (x, key, ...), its first x,
+    whether calls carry the state)."""
     arm, kin = env.arm, env.config.kinematics
     lo, hi = jnp.asarray(env.joint_lower), jnp.asarray(env.joint_upper)
 
@@ -74,12 +93,17 @@ def stages(env, n: int, steps: int) -> dict:
     benv_cond = BatchedEnv(env, n, reset_strategy="cond")
     states = jax.vmap(env.reset)(jax.random.split(jax.random.key(0), n))
     bstate = benv.reset(jax.random.key(0))
+    loop, loop_cond = make_rollout(benv, steps), make_rollout(benv_cond, steps)
     return {
-        "draws": (scan(lambda x, a: x + a.sum()), jnp.zeros(())),
-        "pose": (scan(pose), jnp.zeros(())),
-        "env.step": (scan(jax.vmap(env.step)), states),
-        "batched": (scan(benv.step), bstate),
-        "batched_cond": (scan(benv_cond.step), bstate),
+        "draws": (scan(lambda x, a: x + a.sum()), jnp.zeros(()), False),
+        "pose": (scan(pose), jnp.zeros(()), False),
+        "env.step": (scan(jax.vmap(env.step)), states, False),
+        "batched": (scan(benv.step), bstate, False),
+        "batched_cond": (scan(benv_cond.step), bstate, False),
+        "loop": (loop, bstate, False),
+        "loop_cond": (loop_cond, bstate, False),
+        "loop_carried": (loop, bstate, True),
+        "loop_cond_carried": (loop_cond, bstate, True),
     }
 
 
@@ -90,6 +114,7 @@ def main() -> None:
     p.add_argument("--sizes", nargs="+", type=int, default=[16384, 65536])
     p.add_argument("--steps", type=int, default=100)
     p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--stages", nargs="+", choices=STAGES, default=list(STAGES))
     p.add_argument("--out", type=Path, default=Path("runs/profile_step.json"))
     p.add_argument("--overwrite", action="store_true", help="--out may replace any file")
     args = p.parse_args()
@@ -109,13 +134,15 @@ def main() -> None:
         "records": [],
     }
     for n in args.sizes:
-        for name, (fn, x0) in stages(env, n, args.steps).items():
+        for name, (fn, x0, carried) in stages(env, n, args.steps).items():
+            if name not in args.stages:
+                continue
             key = jax.random.key(1)
             t0 = time.perf_counter()
             compiled = fn.lower(x0, key).compile()
             compile_s = time.perf_counter() - t0
             kernels = kernel_count(compiled.as_text())
-            med = timed(compiled, x0, key, repeats=args.repeats)
+            med = timed(compiled, x0, key, args.repeats, carried)
             rec = {
                 "task": args.task,
                 "kinematics": args.kinematics,

@@ -93,6 +93,23 @@ fused_repeat() {  # issue 35: the fused step's reset strategies measured again, 
   echo "fused_repeat DONE $?" >> /tmp/res/studies.log
   pack fused_repeat
 }
+fused_harness() {  # issue 35: which difference between profile_step's scan and the limit
+  # study's loop turns cond's lead into a loss (section 70), 262,144 envs; packed
+  local o=/tmp/res/fused_harness q="--sizes ${FP_SIZES:-262144}"
+  [ -n "$QUICK" ] && q="--sizes 64 --steps 4 --repeats 1"
+  mkdir -p $o
+  python benchmarks/profile_step.py --kinematics fused $q --out $o/harness.json --stages \
+    batched batched_cond loop loop_cond loop_carried loop_cond_carried > /tmp/res/fused_harness.log 2>&1
+  echo "fused_harness DONE $?" >> /tmp/res/studies.log
+  pack fused_harness
+}
+tta_full() {  # issue 35's one-run record: `benchmark tta` with every part (tta, xla_ops,
+  # seeds, limit, peers), seeds 1000-1002, MARACollisionOrient; about 15 minutes; packed
+  python -m mara_mjx.benchmark tta --seeds 1000 1001 1002 ${QUICK:+--quick --tasks MARA} \
+    --out /tmp/res/tta_full > /tmp/res/tta_full.log 2>&1
+  echo "tta_full DONE $?" >> /tmp/res/studies.log
+  pack tta_full
+}
 pack() {
   tar czf /tmp/res/$1.tgz.part -C /tmp/res $(cd /tmp/res && ls -d $1 $1.log 2>/dev/null) && mv /tmp/res/$1.tgz.part /tmp/res/$1.tgz
 }

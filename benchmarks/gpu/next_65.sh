@@ -36,6 +36,10 @@ one() {  # NAME TASK OFFSET RECIPE: one study of 16 seeds, its checkpoints kept
 #   fused_limit                     issue 35: `benchmark limit --kinematics lean fused` (section 68)
 #   fused_profile                   issue 35: where the fused step's time goes, and the reset
 #                                   strategies select and cond (section 69; about 3 minutes)
+#   fused_harness                   issue 35: profile_step's loop stages, which harness
+#                                   difference flips select/cond (section 70; about 3 min)
+#   tta_full                        issue 35: `benchmark tta` with every part, peers included
+#                                   (section 70; about 15 minutes)
 #   (MCORT_FIRST=1, as before: mcort first)
 # e.g. the next lease, by value: STUDIES="mcort_fix fused_limit" (section 68 ran
 # "mcort tta_seeds plan_mao"; section 67 the first two of "distill_mco plan_mco plan_mao mcort")
@@ -56,6 +60,8 @@ for s in ${STUDIES:-$default}; do
     mcort_fix) one mcort_1648 MARACollisionOrientRandomTarget 1648 cli ;;
     fused_limit) fused_limit ;;
     fused_profile) fused_profile ;;
+    fused_harness) fused_harness ;;
+    tta_full) tta_full ;;
     *) echo "unknown study $s" >> /tmp/res/studies.log ;;
   esac
 done
