@@ -324,16 +324,16 @@ def peers_part(config: TTAConfig, mjx_env_steps_per_s: float | None) -> list[dic
 
     task = config.tasks[0]
     c_config = PeersConfig(tasks=(task,), drivers=("train",), skip_mjx=True)
-    ppo_config = BraxStudyConfig(tasks=(task,))
+    brax_config = BraxStudyConfig(tasks=(task,))
     if config.quick:
         c_config = c_config.replace(quick=True, **PeersConfig.QUICK)
-        ppo_config = ppo_config.replace(quick=True, **BraxStudyConfig.QUICK)
+        brax_config = brax_config.replace(quick=True, **BraxStudyConfig.QUICK)
     if config.peers_total_timesteps:
-        ppo_config = ppo_config.replace(total=config.peers_total_timesteps)
+        brax_config = brax_config.replace(total=config.peers_total_timesteps)
     (c,) = peers_study(c_config.replace(sizes=(config.limit_num_envs,)))
     mjx = mjx_env_steps_per_s
     c = {**c, "mjx_env_steps_per_s": mjx, "mjx_over_c": mjx / c["env_steps_per_s"] if mjx else None}
-    return [{"kind": "peer", "part": "peers", **r} for r in (c, *brax_study(ppo_config))]
+    return [{"kind": "peer", "part": "peers", **r} for r in (c, *brax_study(brax_config))]
 
 
 def tta_study(config: TTAConfig) -> list[dict[str, Any]]:
