@@ -86,7 +86,8 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.json:  # a new file (or --json's own earlier output), checked before the work
         try:
-            outputs.check_output(args.json, "--json report", _ours, args.overwrite)
+            ours = lambda path: outputs.written_by(path, COMMAND)  # noqa: E731
+            outputs.check_output(args.json, "--json report", ours, args.overwrite)
         except UserError as e:
             print(f"error: {e}", file=sys.stderr)
             return 2
@@ -116,14 +117,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 COMMAND = "python benchmarks/episode_trace.py"
-
-
-def _ours(path: Path) -> bool:
-    """An earlier --json report of this script (replaced; anything else is refused)."""
-    try:
-        return json.loads(path.read_text()).get("command") == COMMAND
-    except (OSError, ValueError, AttributeError):
-        return False
 
 
 if __name__ == "__main__":
