@@ -16,12 +16,12 @@ median of `--repeats` calls after a warm-up:
                 output, the fraction of envs that collided), each call from the same state
   loop_carried, loop_cond_carried
                 the same, the state carried from call to call, as those studies time it
-                (the loop stages' programs: their compile is cached, 0 s)
-                (the loop stages separate the two harnesses' differences: on an H100 at
-                262,144 envs the fused step's cond led select by 20% in `limit` and
-                trailed by 14% in `batched_cond`, benchmarks/NOTES.md section 70)
-and each stage's kernels (the launching instructions of its optimised module, the scan's
-body counted once: `mara_mjx.bench.limit.kernel_count`).
+                (the loop stages' programs, so their compile shows as 0 s)
+The loop stages separate the two harnesses' differences: on an H100 at 262,144 envs the
+fused step's cond led select by 20% in `limit` and trailed by 14% in `batched_cond`
+(benchmarks/NOTES.md section 70). Each stage's kernels are recorded too (the launching
+instructions of its optimised module, the scan's body counted once:
+`mara_mjx.bench.limit.kernel_count`).
 
     python benchmarks/profile_step.py --task MARACollisionOrient --kinematics fused \
         --sizes 262144 1048576 --out runs/profile_step.json

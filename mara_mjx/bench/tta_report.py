@@ -98,7 +98,7 @@ def _peer_notes(peers: list[dict[str, Any]]) -> list[str]:
             f"{mega(r['env_steps_per_s'])} env steps/s; MJX's env step (limit part) "
             f"{mega(r['mjx_env_steps_per_s'])}" + (f", {ratio:.3g}x C's." if ratio else "."),
         ]
-    ppo = [r for r in peers if "settled_to_5mm_s" in r or "curve" in r]
+    ppo = [r for r in peers if "curve" in r]  # the brax study's two runs
     if ppo:
         text = "; ".join(
             f"{r['impl']} {mega(r['env_steps_per_s'])} env steps/s, settled error below 5 mm "

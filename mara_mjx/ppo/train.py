@@ -162,8 +162,8 @@ def make_train(
     mesh = benv.mesh
     network = make_network(train_config, benv.action_size, training=True)
     saved = make_network(train_config, benv.action_size)  # the saved policy (the probe's)
-    det_network = saved if curriculum.probe_reach_steps == 0 else network  # det_* step: no
-    # saved forward where the reach probe measures it (37% of `run`: benchmarks/NOTES.md s. 70)
+    # det_* step: the saved policy, unless the reach probe measures it (NOTES s. 70: 37% of run)
+    det_network = saved if curriculum.probe_reach_steps == 0 else network
     optimizer = make_optimizer(config)
     lr_at_update = make_lr_schedule(config)
     obs_size = benv.observation_size  # hidden_obs within it: checked by for_env
