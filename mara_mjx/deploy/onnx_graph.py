@@ -36,8 +36,10 @@ solves the same symmetric positive-definite system; the two differ at float32's 
 Before a model is returned it is checked (`self_check`): onnx.checker's full check, then
 onnxruntime against the jitted JAX step on `check_observations` (arm poses with
 sigma_min(J) >= 0.05, targets from a millimetre to half a radian of joint motion away):
-max |diff| <= `tolerance` (1e-4 rad) against the jitted step, or else against the
-eager one (JAX's own jit and eager differ by ~1e-4 at float32); for a policy with a plan
+max |diff| <= `tolerance` (1e-4 rad) plus twice the jitted step's own spread when its
+inputs are rounded differently (`own_spread`: ~1e-6 rad at most observations, a few 1e-4
+at a few), against the jitted step, or else against the eager one (JAX's own jit and
+eager differ by ~1e-4 at float32 there); for a policy with a plan
 (PolicyConfig.plan_steps K), 95% of the observations within 1e-4 x (1 + K / 4) and each
 within that plus the jitted step's own spread when its inputs are rounded differently
 (`own_spread`: K imagined steps are chaotic at a few observations). Else OnnxGraphError
@@ -61,10 +63,10 @@ OPSET = 17
 TOLERANCE = 1e-4
 """rad: onnxruntime against the JAX step on the check observations."""
 ROUNDING_DRAWS = 32
-"""A planned policy's check: how many times each check observation is re-rounded to
-measure the jitted step's own sensitivity (`own_spread`)."""
+"""The check: how many times each check observation is re-rounded to measure the jitted
+step's own sensitivity (`own_spread`)."""
 SPREAD_MARGIN = 2.0
-"""A planned policy's check: the graph, one more float32 evaluation, may differ from the
+"""The check: the graph, one more float32 evaluation, may differ from the
 jit by this many times the largest of the draws' moves (a maximum over 32 draws samples
 the range of a chaotic observation's outputs, it does not bound it)."""
 MIN_SINGULAR = 0.05
@@ -139,6 +141,7 @@ def build_model(
         from mara_mjx.ppo.parametrisation import PLAN_START_STEPS
 
         steps = max(steps, PLAN_START_STEPS)
+    spread = own_spread(step, obs, want)
     if steps:
         # K imagined steps amplify float32's rounding where the plan is sensitive to its
         # start: on a trained random-target policy at K = 16, one or two of 128 check
@@ -148,7 +151,6 @@ def build_model(
         # than that. So: 95% of the observations within the tolerance x (1 + K / 4), and
         # every one within that bound plus SPREAD_MARGIN x the jitted step's own spread
         bound = tolerance * (1 + steps / 4)
-        spread = own_spread(step, obs, want)
         allowed = bound + SPREAD_MARGIN * spread
         diff = self_check(model, obs, want, batch, allowed, quantile=(0.95, bound))
         reference = (
@@ -156,7 +158,17 @@ def build_model(
             f"the jit's own spread under input rounding (largest {spread.max():.1e})"
         )
     else:
-        diff, reference = _check_against_jit_or_eager(model, obs, want, batch, tolerance, step)
+        # each observation within the tolerance plus the jit's own spread: where a posture
+        # is near enough to singular that 2-4 ulps of input rounding move the jitted step by
+        # more than 1e-4 (measured: 2.8e-4 to 5.6e-4 on 3 of 128 check observations of a
+        # random orient-first policy, on an AMD EPYC CPU; ~1e-6 on the rest), no float32
+        # evaluation, the graph's included, can be held to 1e-4 there
+        allowed = tolerance + SPREAD_MARGIN * spread
+        diff, reference = _check_against_jit_or_eager(model, obs, want, batch, allowed, step)
+        reference += (
+            f"; each within {tolerance:.0e} plus {SPREAD_MARGIN:g}x the jit's own spread under "
+            f"input rounding (largest {spread.max():.1e})"
+        )
     meta = {**meta, "self_check": {
         "observations": len(obs), "max_abs_diff": diff, "reference": reference}}  # fmt: skip
     helper.set_model_props(model, {"mara_mjx": json.dumps(meta)})
@@ -191,7 +203,7 @@ def _check_against_jit_or_eager(
     obs: np.ndarray,
     want: list[np.ndarray],
     batch: int | None,
-    tolerance: float,
+    tolerance: float | np.ndarray,
     step: Callable[[Any], tuple[Any, Any]],
 ) -> tuple[float, str]:
     """(difference, reference) of `self_check` against the jitted step `want`, or, where
