@@ -123,34 +123,34 @@ def phases(env_name: str, extra: list[str], cache: str, overlap: bool) -> dict:
     env._check_target(env.config)
     mark("IK reachability check", t)
     t = time.monotonic()
-    trainer = make_train(env, plan.ppo, plan.run.updates_per_call, plan.run.devices)
+    trainer = make_train(env, plan.config, plan.run.updates_per_call, plan.run.devices, None, True)
     mark("make_train", t)
     t = time.monotonic()
     key, evaluate_fn, background = jax.random.key(0), None, None
     if overlap:  # as the train CLI does (mara_mjx.ppo.warmup)
         evaluate_fn = make_evaluate(env, plan.eval)
-        policy_of = lambda s: make_policy(s, plan.ppo)  # noqa: E731
+        policy_of = lambda s: make_policy(s, plan.config)  # noqa: E731
         background = warmup.start(trainer, key, evaluate_fn, policy_of, min_cpus=1)
     state = jax.block_until_ready(trainer.init(key))
     mark("trainer.init (first call)" + (", trainer.run compiling beside it" if overlap else ""), t)
     if background is not None:
         t = time.monotonic()
         background.wait("run")
-        mark("waiting for the background compile of trainer.run", t)
-    t = time.monotonic()
-    state, metrics = trainer.run(state, 1)
-    jax.device_get(metrics)
-    mark("trainer.run, first update (first call)", t)
-    t = time.monotonic()
-    state, metrics = trainer.run(state, 1)
-    jax.device_get(metrics)
-    mark("trainer.run, second update", t)
+        background.wait("probe")
+        mark("waiting for the background compiles of trainer.run and the reach probe", t)
+    for which in ("first update (first call)", "second update"):
+        t = time.monotonic()
+        state, metrics = trainer.run(state, 1)
+        if trainer.probe is not None:  # the reach probe, its own program (as the CLI)
+            metrics = {**metrics, "reach_error_mm": trainer.probe(state, 1)}
+        jax.device_get(metrics)
+        mark(f"trainer.run and the reach probe, {which}", t)
     if background is not None:
         t = time.monotonic()
         background.wait()
         mark("waiting for the background compile of the evaluation", t)
     t = time.monotonic()
-    evaluate(env, make_policy(state, plan.ppo), plan.eval, fn=evaluate_fn)
+    evaluate(env, make_policy(state, plan.config), plan.eval, fn=evaluate_fn)
     mark("final evaluation (first call)", t)
     return {"mode": "phases", "env": env_name, "cache": cache, "overlap": overlap, "phases": rows}
 
