@@ -37,23 +37,18 @@ import numpy as np
 from mara_mjx.envs.geometry import quat_canonical, quat_to_mat_np
 
 
-def _rotations(axis: np.ndarray, angle: jnp.ndarray) -> jnp.ndarray:
-    """(..., n, 3, 3) rotations by `angle` (..., n) rad about the unit axes `axis` (n, 3)
-    (Rodrigues). Every joint in one pass: the same arithmetic per entry as one joint at
-    a time, in a quarter of the traced operations (the chain is traced a dozen times
-    per training program)."""
-    x, y, z = (jnp.asarray(axis[:, k], jnp.float32) for k in range(3))
-    # cos and sin joint by joint: onnxruntime's vectorised cos and sin (on >= 4 values)
-    # round differently from its scalar ones, and the exported guard amplifies that
-    c = jnp.stack([jnp.cos(angle[..., i]) for i in range(axis.shape[0])], axis=-1)
-    s = jnp.stack([jnp.sin(angle[..., i]) for i in range(axis.shape[0])], axis=-1)
+def _rodrigues(axis: jnp.ndarray, angle: jnp.ndarray) -> jnp.ndarray:
+    """(3, 3) rotation by `angle` rad about the unit `axis` (3,)."""
+    x, y, z = axis[0], axis[1], axis[2]
+    c, s = jnp.cos(angle), jnp.sin(angle)
     t = 1.0 - c
-    rows = [
-        [t * x * x + c, t * x * y - s * z, t * x * z + s * y],
-        [t * x * y + s * z, t * y * y + c, t * y * z - s * x],
-        [t * x * z - s * y, t * y * z + s * x, t * z * z + c],
-    ]
-    return jnp.stack([jnp.stack(row, axis=-1) for row in rows], axis=-2)
+    return jnp.array(
+        [
+            [t * x * x + c, t * x * y - s * z, t * x * z + s * y],
+            [t * x * y + s * z, t * y * y + c, t * y * z - s * x],
+            [t * x * z - s * y, t * y * z + s * x, t * z * z + c],
+        ]
+    )
 
 
 def _mat_to_quat(m: jnp.ndarray) -> jnp.ndarray:
@@ -145,14 +140,13 @@ class Chain:
         axes xaxis (6, 3) and anchors xanchor (6, 3), world frame."""
         x = jnp.asarray(self.base_pos, jnp.float32)
         rot = jnp.asarray(self.base_rot, jnp.float32)
-        turns = _rotations(self.axis, q)  # (6, 3, 3): each joint's own rotation
         xs, rots, axes, anchors = [], [], [], []
         for i in range(6):
             rot_pre = rot @ jnp.asarray(self.body_rot[i], jnp.float32)
             axis_w = rot_pre @ jnp.asarray(self.axis[i], jnp.float32)
             anchor_w = x + rot @ jnp.asarray(self.body_pos[i], jnp.float32)
             anchor_w = anchor_w + rot_pre @ jnp.asarray(self.anchor[i], jnp.float32)
-            rot = rot_pre @ turns[i]
+            rot = rot_pre @ _rodrigues(jnp.asarray(self.axis[i], jnp.float32), q[i])
             x = anchor_w - rot @ jnp.asarray(self.anchor[i], jnp.float32)
             xs.append(x)
             rots.append(rot)
