@@ -36,7 +36,8 @@ for d in sorted(Path(sys.argv[1]).glob('*/runs/*/')): print(d.name, h(d), h(d, t
   rm -rf /tmp/work/$1/*/cache-seed*  # (the caches: gigabytes on a GPU)
   pack $1
 }
-packages=${PACKAGES:-before main}  # (a subset, e.g. PACKAGES=main)
+packages=${PACKAGES:-before main}  # (a subset, e.g. PACKAGES=main; or another sweep_in/NAME,
+# e.g. PACKAGES="main cuts": this tree with NOTES 71's trace_cuts patches, section 71 says how)
 for d in $packages; do
   [ $d = main ] && continue
   [ -d sweep_in/$d/mara_mjx ] || { echo "no sweep_in/$d/mara_mjx" >> /tmp/res/studies.log; [ -n "$NO_DRIVER_DONE" ] || echo DRIVER_DONE >> /tmp/res/studies.log; exit 1; }
@@ -47,7 +48,7 @@ for round in $(seq 1 ${ROUNDS:-1}); do  # one round: 18 train commands, about 14
     case $d in
       before) one tta_before_$round $PWD/sweep_in/before ${BEFORE:-ac8d6a3~1} ;;
       main) one tta_main_$round $PWD $here ;;
-      *) echo "unknown package $d (before, main)" >> /tmp/res/studies.log ;;
+      *) one tta_${d}_$round $PWD/sweep_in/$d "$here+$d" ;;  # sweep_in/NAME: a patched tree
     esac
   done
 done
