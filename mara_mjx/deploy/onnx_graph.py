@@ -158,11 +158,11 @@ def build_model(
             f"the jit's own spread under input rounding (largest {spread.max():.1e})"
         )
     else:
-        # each observation within the tolerance plus the jit's own spread: where a posture
-        # is near enough to singular that 2-4 ulps of input rounding move the jitted step by
-        # more than 1e-4 (measured: 2.8e-4 to 5.6e-4 on 3 of 128 check observations of a
-        # random orient-first policy, on an AMD EPYC CPU; ~1e-6 on the rest), no float32
-        # evaluation, the graph's included, can be held to 1e-4 there
+        # each observation within the tolerance plus the jit's own spread: where 2-4 ulps
+        # of input rounding move the jitted step by more than 1e-4 (measured: 2.8e-4 to
+        # 5.6e-4 at 3 of 128 check observations of a random orient-first policy on an AMD
+        # EPYC CPU, ~1e-6 at the rest; benchmarks/NOTES.md section 71), no float32
+        # evaluation, the graph's included, can be held to 1e-4 (32 more jitted calls)
         allowed = tolerance + SPREAD_MARGIN * spread
         diff, reference = _check_against_jit_or_eager(model, obs, want, batch, allowed, step)
         reference += (
