@@ -1,6 +1,8 @@
 #!/bin/bash
 # Section 71's plan for the next lease (issue 35), one H100, GPU otherwise idle (timings),
-# about 32 minutes, each part packed as it ends:
+# about 33 minutes, each part packed as it ends:
+#   0. backend_overlap.py --repeat 3: would the backend's start beside the imports save
+#      anything on a GPU host (under a minute)?
 #   1. fused_harness (lib.sh): profile_step's loop stages, which harness difference turns
 #      cond's lead into a loss (section 70; about 3 minutes);
 #   2. cold_59.sh with PACKAGES="main cuts": this tree against it with the two trace_cuts
@@ -17,6 +19,11 @@
 cd "$(dirname "$0")/../.."
 . benchmarks/gpu/lib.sh
 rm -f /tmp/res/studies.log /tmp/res/sent
+mkdir -p /tmp/res/backend_overlap
+python benchmarks/backend_overlap.py --repeat 3 --json /tmp/res/backend_overlap/overlap.jsonl \
+  > /tmp/res/backend_overlap.log 2>&1
+echo "backend_overlap DONE $?" >> /tmp/res/studies.log
+pack backend_overlap
 fused_harness
 KEEP_LOG=1 NO_DRIVER_DONE=1 PACKAGES="main cuts" bash benchmarks/gpu/cold_59.sh
 tta_full
