@@ -52,7 +52,7 @@ PRESPLIT = {
             "cli": "08e05baa793f97fb55ea16fc7cb3f315b03586b1d09bf8fd6ec7860e039f5b98",
         },
         # the recording commit gives this pair too on such a host (AVX2 and FMA, no
-        # AVX-512), as main did before and after the vectorised Rodrigues (chain.py)
+        # AVX-512), as main does (and did with NOTES section 71's trace cuts applied)
         "an AMD EPYC with AVX2 (2026-12-08)": {
             "toy": "cb2b101637d451eb070ae24a910831b16e3af0216aba242b9ed91e476f5296d4",
             "cli": "4e24ab57e14961b3c72805c536cd0ef2182f6998ff998806dd78275c67768075",
