@@ -24,7 +24,8 @@ import sys
 
 CHILD = r"""
 import json, os, sys, threading, time
-def since_start():
+def since_start():  # mara_mjx.cli.train's _command_start, inlined: importing it would
+    # import the package before the clock's first reading
     with open("/proc/self/stat") as f:
         ticks = int(f.read().rsplit(")", 1)[1].split()[19])
     with open("/proc/uptime") as f:

@@ -123,7 +123,9 @@ def phases(env_name: str, extra: list[str], cache: str, overlap: bool) -> dict:
     env._check_target(env.config)
     mark("IK reachability check", t)
     t = time.monotonic()
-    trainer = make_train(env, plan.config, plan.run.updates_per_call, plan.run.devices, None, True)
+    trainer = make_train(  # the reach probe its own program, as the train CLI keeps it
+        env, plan.config, plan.run.updates_per_call, plan.run.devices, probe_apart=True
+    )
     mark("make_train", t)
     t = time.monotonic()
     key, evaluate_fn, background = jax.random.key(0), None, None
