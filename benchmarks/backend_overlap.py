@@ -59,7 +59,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--json", help="also append the lines to this file")
+    parser.add_argument("--overwrite", action="store_true", help="--json may append to any file")
     args = parser.parse_args()
+    if args.json:  # a new file or this script's own earlier lines, checked before the work
+        from mara_mjx.cli.common import UserError
+        from mara_mjx.runtime import outputs
+
+        ours = lambda path: outputs.lines_written_by(path, "mode", ("serial", "overlap"))  # noqa: E731
+        try:
+            outputs.check_output(args.json, "--json file", ours, args.overwrite)
+        except UserError as e:
+            raise SystemExit(f"error: {e}") from None
     for _ in range(args.repeat):
         for mode in ("serial", "overlap"):
             proc = subprocess.run(

@@ -209,6 +209,7 @@ def main() -> None:
         "train CLI does (false: one after the other, as before issue 14)",
     )
     parser.add_argument("--json", help="also append the results to this file")
+    parser.add_argument("--overwrite", action="store_true", help="--json may append to any file")
     parser.add_argument(
         "--size",
         choices=("tiny", "default"),
@@ -216,6 +217,15 @@ def main() -> None:
         help="tiny: 4 envs x 8 steps (a CPU); default: the default preset, 2 updates (a GPU)",
     )
     args, extra = parser.parse_known_args()
+    if args.json:  # a new file or this script's own earlier lines, checked before the work
+        from mara_mjx.cli.common import UserError
+        from mara_mjx.runtime import outputs
+
+        ours = lambda path: outputs.lines_written_by(path, "mode", ("phases", "cli"))  # noqa: E731
+        try:
+            outputs.check_output(args.json, "--json file", ours, args.overwrite)
+        except UserError as e:
+            raise SystemExit(f"error: {e}") from None
     extra = (TINY if args.size == "tiny" else DEFAULT) + [a for a in extra if a != "--"]
     for _ in range(args.repeat):
         if args.mode == "phases":

@@ -67,6 +67,17 @@ def written_by(record: str | os.PathLike, command: str) -> bool:
     return isinstance(data, dict) and str(data.get("command", "")).startswith(command)
 
 
+def lines_written_by(record: str | os.PathLike, key: str, values: tuple[str, ...]) -> bool:
+    """True if every line of `record` is a JSON object whose `key` is one of `values`: a
+    script's own earlier JSON-lines output (its `ours` for check_output), which it may
+    append to."""
+    try:
+        rows = [json.loads(line) for line in Path(record).read_text().splitlines() if line]
+    except (OSError, ValueError):
+        return False
+    return all(isinstance(r, dict) and r.get(key) in values for r in rows)
+
+
 def is_run_folder(folder: str | os.PathLike) -> bool:
     """True if `folder` holds the config.json of a mara_mjx training run."""
     config = read_json(Path(folder) / "config.json")
