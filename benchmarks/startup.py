@@ -221,9 +221,10 @@ def main() -> None:
         from mara_mjx.cli.common import UserError
         from mara_mjx.runtime import outputs
 
-        ours = lambda path: outputs.lines_written_by(path, "mode", ("phases", "cli"))  # noqa: E731
         try:
-            outputs.check_output(args.json, "--json file", ours, args.overwrite)
+            outputs.check_lines_output(
+                args.json, "--json file", "mode", ("phases", "cli"), args.overwrite
+            )
         except UserError as e:
             raise SystemExit(f"error: {e}") from None
     extra = (TINY if args.size == "tiny" else DEFAULT) + [a for a in extra if a != "--"]

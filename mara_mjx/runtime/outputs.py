@@ -78,6 +78,15 @@ def lines_written_by(record: str | os.PathLike, key: str, values: tuple[str, ...
     return all(isinstance(r, dict) and r.get(key) in values for r in rows)
 
 
+def check_lines_output(
+    path: str | os.PathLike, what: str, key: str, values: tuple[str, ...], overwrite: bool
+) -> Path:
+    """check_output for a script that appends JSON lines: `path` new, or its own earlier
+    lines (`lines_written_by`), or any file with `overwrite`."""
+    ours = lambda record: lines_written_by(record, key, values)  # noqa: E731
+    return check_output(path, what, ours, overwrite)
+
+
 def is_run_folder(folder: str | os.PathLike) -> bool:
     """True if `folder` holds the config.json of a mara_mjx training run."""
     config = read_json(Path(folder) / "config.json")
